@@ -1,0 +1,61 @@
+#!/usr/bin/env bash
+# Set up weldcell from nothing and run one of its two jobs.
+#   scripts/bootstrap.sh demo   - detect the seams of the bundled sample capture
+#   scripts/bootstrap.sh test   - lint, type-check and run the whole test suite
+# Idempotent: a second run reuses .venv unless pyproject.toml changed.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+job="${1:-demo}"
+
+say() { printf '\033[1m[weldcell setup]\033[0m %s\n' "$*" >&2; }
+
+# open3d needs the system library libusb-1.0 (Debian package libusb-1.0-0).
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+    if [ "$(id -u)" = 0 ]; then
+        say "installing libusb-1.0-0 (needed by open3d)"
+        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
+    elif command -v sudo >/dev/null && sudo -n true 2>/dev/null; then
+        say "installing libusb-1.0-0 with sudo (needed by open3d)"
+        sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
+    else
+        say "open3d needs libusb-1.0: run 'apt-get install libusb-1.0-0' as root, then run this again"
+        exit 1
+    fi
+fi
+
+PY="${PYTHON:-}"
+if [ -z "$PY" ]; then
+    for cand in python3.13 python3.12 python3.11 python3; do
+        if command -v "$cand" >/dev/null && "$cand" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then
+            PY="$cand"; break
+        fi
+    done
+fi
+[ -n "$PY" ] || { say "Python 3.11 or newer is required"; exit 1; }
+
+stamp_want="$( (cat pyproject.toml; "$PY" --version) | sha256sum | cut -c1-16)"
+if [ ! -x .venv/bin/python ] || [ "$(cat .venv/.setup-stamp 2>/dev/null)" != "$stamp_want" ]; then
+    say "creating .venv and installing weldcell with its dependencies (about a minute)"
+    "$PY" -m venv .venv
+    .venv/bin/python -m pip install -q --upgrade pip
+    .venv/bin/python -m pip install -q -e '.[dev]'
+    echo "$stamp_want" > .venv/.setup-stamp
+fi
+
+case "$job" in
+    demo)
+        mkdir -p out
+        exec .venv/bin/weldcell demo --out out
+        ;;
+    test)
+        say "ruff"
+        .venv/bin/ruff check .
+        say "mypy"
+        .venv/bin/mypy cell drivers perception calibration sim_fakes
+        say "pytest"
+        exec .venv/bin/python -m pytest -q -p no:cacheprovider
+        ;;
+    *)
+        say "unknown job '$job': use 'demo' or 'test'"; exit 2
+        ;;
+esac

@@ -1,0 +1,1 @@
+"""weldcell sim_fakes package."""
