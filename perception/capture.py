@@ -437,6 +437,14 @@ def load_capture(folder: str | os.PathLike[str]) -> Capture:
     finite = np.isfinite(depth) & (depth > 0)
     if not finite.any():
         raise BadCapture("all depth is invalid (every pixel is 0 or NaN)", path=depth_path)
+    if (depth[finite] < 0).any():
+        raise BadCapture("depth contains negative values", path=depth_path)
+    z_max = float(depth[finite].max())
+    if z_max > MAX_PLAUSIBLE_DEPTH_M:
+        raise BadCapture(
+            f"depth up to {z_max:.1f} m is implausible; check depth_scale in camera.json (units per metre)",
+            path=depth_path,
+        )
     X_base_tool = X_tool_camera = None
     if (root / POSE_FILE).is_file():
         X_base_tool, X_tool_camera = _read_pose(root / POSE_FILE)
@@ -470,11 +478,18 @@ def load_capture(folder: str | os.PathLike[str]) -> Capture:
 # Writing
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a capture is meant to be shared
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -530,10 +545,11 @@ def save_capture(
         )
         (root / DEPTH_NPY_FILE).unlink(missing_ok=True)
     else:
-        fd, tmp = tempfile.mkstemp(dir=root, suffix=".npy")
-        os.close(fd)
-        np.save(tmp, np.where(np.isfinite(capture.depth_m), capture.depth_m, 0).astype(np.float32))
-        os.replace(tmp, root / DEPTH_NPY_FILE)
+        import io
+
+        buf = io.BytesIO()
+        np.save(buf, np.where(np.isfinite(capture.depth_m), capture.depth_m, 0).astype(np.float32))
+        _atomic_write_bytes(root / DEPTH_NPY_FILE, buf.getvalue())
         (root / DEPTH_PNG_FILE).unlink(missing_ok=True)
     write_json(root / CAMERA_FILE, capture.intrinsics.to_json(depth_scale=capture.depth_scale))
     if capture.X_base_tool is not None and capture.X_tool_camera is not None:
@@ -569,9 +585,11 @@ class PointCloud:
 def read_point_cloud(path: str | os.PathLike[str]) -> PointCloud:
     """Read a .ply, .pcd (with or without colour) or .npy (N, 3) cloud; NaN points are dropped."""
     p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in (".ply", ".pcd", ".npy"):
+        raise BadCapture(f"unsupported point cloud format {suffix!r}; use .ply, .pcd or .npy", path=p)
     if not p.is_file():
         raise BadCapture("point cloud file does not exist", path=p)
-    suffix = p.suffix.lower()
     colors: FloatArray | None = None
     if suffix == ".npy":
         try:

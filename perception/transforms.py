@@ -134,7 +134,7 @@ def look_at_X(eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)
         raise TransformError("look_at: eye and target coincide")
     z /= norm
     up_w = np.asarray(up, dtype=np.float64)
-    x = np.cross(z, -up_w)
+    x = np.cross(z, up_w)
     if np.linalg.norm(x) < 1e-9:
         raise TransformError("look_at: viewing direction is parallel to 'up'")
     x /= np.linalg.norm(x)
