@@ -37,6 +37,10 @@ class MotionRejected(DriverError):
     """The controller refused a motion (unreachable pose, limits, bad parameters)."""
 
 
+class MotionAborted(DriverError):
+    """A motion was cut short on purpose (a stop was sent); the remaining poses were dropped."""
+
+
 class DeviceFault(DriverError):
     """The device reports a fault; ``code`` is the vendor's code when there is one."""
 
