@@ -85,6 +85,7 @@ class DetectionResult:
     point_counts: dict[str, int] = field(default_factory=dict)
     timing_s: dict[str, float] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
+    artifacts: dict[str, Any] = field(default_factory=dict, repr=False)  # masks, ROI: for overlays, not JSON
 
 
 def seams_to_json(result: DetectionResult) -> dict[str, Any]:

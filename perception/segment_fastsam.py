@@ -591,6 +591,8 @@ class FastSamSegmenter:
         color_rgb: NDArray[np.uint8],
         depth_m: NDArray[np.float32],
         prompts_px: FloatArray,
+        *,
+        points_camera: NDArray[np.float32] | None = None,
     ) -> SurfaceMasks:
         """One surface per prompt: the smallest FastSAM mask containing the prompt pixel.
 

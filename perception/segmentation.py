@@ -64,8 +64,11 @@ class Segmenter(Protocol):
         color_rgb: NDArray[np.uint8],
         depth_m: NDArray[np.float32],
         prompts_px: FloatArray,
+        *,
+        points_camera: NDArray[np.float32] | None = None,
     ) -> SurfaceMasks:
-        """color_rgb: (H, W, 3) uint8; depth_m: (H, W) float32 metres, NaN = none; prompts_px: (K, 2) (u, v).
+        """color_rgb: (H, W, 3) uint8; depth_m: (H, W) float32 metres, NaN = none; prompts_px: (K, 2) (u, v);
+        points_camera: the organized (H, W, 3) cloud when the caller has it (backends may use it or not).
 
         Returns one surface per prompt (a surface may be empty when the backend finds nothing there).
         """

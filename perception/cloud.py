@@ -1,0 +1,240 @@
+"""Fine-stage steps on unorganized clouds: pass-through, voxel grid, KD-tree, normals and curvature,
+and region growing. Each is a pure function; arrays are (N, 3) float64 metres in the camera frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+def pass_through(
+    points: FloatArray,
+    *,
+    z_range_m: tuple[float, float] = (0.1, 3.0),
+    box_min: FloatArray | None = None,
+    box_max: FloatArray | None = None,
+) -> NDArray[np.bool_]:
+    """(N,) mask of points inside the working range along z and inside the optional axis-aligned box."""
+    keep = np.isfinite(points).all(axis=1)
+    keep &= (points[:, 2] >= z_range_m[0]) & (points[:, 2] <= z_range_m[1])
+    if box_min is not None:
+        keep &= (points >= np.asarray(box_min)).all(axis=1)
+    if box_max is not None:
+        keep &= (points <= np.asarray(box_max)).all(axis=1)
+    return keep
+
+
+@dataclass(frozen=True)
+class VoxelGrid:
+    """Result of voxel downsampling.
+
+    centroids: (M, 3) mean of the points in each occupied voxel.
+    point_voxel: (N,) index of each input point's voxel (so per-voxel results map back to points).
+    counts: (M,) points per voxel.
+    labels: (M,) majority surface label per voxel (-1 when the input had none).
+    """
+
+    centroids: FloatArray
+    point_voxel: IntArray
+    counts: IntArray
+    labels: NDArray[np.int32]
+    voxel_m: float
+
+
+def voxel_downsample(
+    points: FloatArray, *, voxel_m: float = 0.003, labels: NDArray[np.int32] | None = None
+) -> VoxelGrid:
+    """Voxel grid with one centroid per occupied voxel (the paper's downsampling, default 3 mm)."""
+    if voxel_m <= 0:
+        raise ValueError(f"voxel size must be positive, got {voxel_m}")
+    keys3 = np.floor(points / voxel_m).astype(np.int64)
+    keys3 -= keys3.min(axis=0)
+    dims = keys3.max(axis=0) + 1
+    key = (keys3[:, 0] * dims[1] + keys3[:, 1]) * dims[2] + keys3[:, 2]
+    uniq, inv = np.unique(key, return_inverse=True)
+    m = len(uniq)
+    counts = np.bincount(inv, minlength=m)
+    cent = np.column_stack([np.bincount(inv, weights=points[:, k], minlength=m) for k in range(3)]) / counts[:, None]
+    if labels is None:
+        vlab = np.full(m, -1, np.int32)
+    else:
+        nl = int(labels.max(initial=-1)) + 2
+        votes = np.bincount(inv * nl + (labels.astype(np.int64) + 1), minlength=m * nl).reshape(m, nl)
+        vlab = (votes.argmax(axis=1) - 1).astype(np.int32)
+    return VoxelGrid(cent, inv.astype(np.int64), counts.astype(np.int64), vlab, voxel_m)
+
+
+@dataclass(frozen=True)
+class Neighbourhoods:
+    """k nearest neighbours of each point (self first); ``valid`` marks those within ``radius_m``."""
+
+    tree: cKDTree
+    idx: IntArray  # (M, k)
+    dist: FloatArray  # (M, k)
+    valid: NDArray[np.bool_]  # (M, k)
+
+
+def neighbourhoods(points: FloatArray, *, k: int = 16, radius_m: float = 0.0075) -> Neighbourhoods:
+    tree = cKDTree(points)
+    k_eff = min(k, len(points))
+    dist, idx = tree.query(points, k=k_eff)
+    dist = dist.reshape(len(points), k_eff)
+    idx = idx.reshape(len(points), k_eff)
+    return Neighbourhoods(tree, idx.astype(np.int64), dist, dist <= radius_m)
+
+
+def normals_and_curvature(
+    points: FloatArray, nbh: Neighbourhoods, *, viewpoint: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """Per point: unit normal (towards ``viewpoint``, default the camera origin) and the surface
+    variation (curvature) delta = l0 / (l0 + l1 + l2) of its neighbourhood covariance (l0 smallest)."""
+    q = points[nbh.idx]  # (M, k, 3)
+    w = nbh.valid.astype(np.float64)[..., None]
+    cnt = np.maximum(w.sum(axis=1), 1.0)
+    mean = (q * w).sum(axis=1) / cnt
+    d = (q - mean[:, None, :]) * w
+    cov = np.einsum("mki,mkj->mij", d, d) / cnt[..., None]
+    evals, evecs = np.linalg.eigh(cov)
+    normals = evecs[:, :, 0]
+    vp = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
+    flip = ((vp - points) * normals).sum(axis=1) < 0
+    normals[flip] *= -1
+    total = np.maximum(evals.sum(axis=1), 1e-30)
+    curvature = np.clip(evals[:, 0], 0.0, None) / total
+    curvature[cnt[:, 0] < 4] = 1.0 / 3.0  # too few neighbours: treat as maximally curved
+    return normals, curvature
+
+
+@dataclass(frozen=True)
+class RegionParams:
+    max_angle_deg: float = 12.0  # smoothness: neighbours join when their normals differ by less
+    max_curvature: float = 0.04  # only points flatter than this keep growing the region
+    min_region_points: int = 8
+
+
+def grow_regions(
+    normals: FloatArray,
+    curvature: FloatArray,
+    nbh: Neighbourhoods,
+    *,
+    params: RegionParams | None = None,
+    labels: NDArray[np.int32] | None = None,
+) -> NDArray[np.int32]:
+    """Region growing as in PCL's RegionGrowing, seeded from the lowest curvature.
+
+    A region starts at the flattest unassigned point; a neighbour joins when its normal is within
+    ``max_angle_deg`` of the current point's (and, when ``labels`` are given, it has the same surface
+    label); a joined neighbour keeps growing the region only if its curvature is below
+    ``max_curvature``. Returns (M,) region ids numbered in seeding order, -1 for points in regions
+    smaller than ``min_region_points``.
+
+    Implemented without a per-point Python loop: the flat points ("growers") connected by smooth
+    edges form the cores (connected components); a curved point joins the region of the earliest
+    seeded grower next to it with a smooth edge, exactly what sequential growing produces; the
+    remaining points seed their own (small) regions.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    p = params or RegionParams()
+    m = len(normals)
+    cos_t = np.cos(np.radians(p.max_angle_deg))
+    idx = nbh.idx
+    nb_normals = normals[idx]  # (M, k, 3)
+    smooth = nbh.valid & (np.abs((nb_normals * normals[:, None, :]).sum(axis=2)) >= cos_t)
+    if labels is not None:
+        smooth &= labels[idx] == labels[:, None]
+    smooth[:, 0] = False  # self
+    grower = curvature < p.max_curvature
+    rows = np.repeat(np.arange(m), idx.shape[1]).reshape(idx.shape)
+    e = smooth & grower[:, None] & grower[idx]
+    graph = coo_matrix((np.ones(int(e.sum())), (rows[e], idx[e])), shape=(m, m))
+    n_core, core = connected_components(graph, directed=False)
+    # seeding order: each core is seeded at its flattest point; order cores by that curvature
+    core_min = np.full(n_core, np.inf)
+    np.minimum.at(core_min, core[grower], curvature[grower])
+    region = np.full(m, -1, np.int64)
+    region[grower] = core[grower]
+    # a curved point joins a smooth grower neighbour's region, the earliest seeded one
+    rank = np.empty(n_core, np.int64)
+    rank[np.argsort(core_min, kind="stable")] = np.arange(n_core)
+    curved = np.flatnonzero(~grower)
+    if len(curved):
+        nb = idx[curved]
+        ok = smooth[curved] & grower[nb]
+        nb_rank = np.where(ok, rank[np.where(grower[nb], core[nb], 0)], np.iinfo(np.int64).max)
+        best = nb_rank.argmin(axis=1)
+        has = ok[np.arange(len(curved)), best]
+        chosen = nb[np.arange(len(curved)), best]
+        region[curved[has]] = core[chosen[has]]
+    # renumber by seeding order and drop small regions
+    valid = region >= 0
+    sizes = np.bincount(region[valid], minlength=n_core)
+    keep_core = sizes >= p.min_region_points
+    order = np.argsort(np.where(keep_core, core_min, np.inf), kind="stable")
+    new_id = np.full(n_core, -1, np.int64)
+    n_keep = int(keep_core.sum())
+    new_id[order[:n_keep]] = np.arange(n_keep)
+    out = np.full(m, -1, np.int32)
+    out[valid] = new_id[region[valid]].astype(np.int32)
+    return out
+
+
+def merge_coplanar_regions(
+    points: FloatArray,
+    regions: NDArray[np.int32],
+    nbh: Neighbourhoods,
+    *,
+    max_angle_deg: float = 10.0,
+    max_offset_m: float = 0.0015,
+) -> NDArray[np.int32]:
+    """Join neighbouring regions that are one plane split by noise (normals within ``max_angle_deg``,
+    each centroid within ``max_offset_m`` + 2 RMS of the other's plane). Region ids keep the order of
+    their smallest member id, so the result stays deterministic."""
+    n_reg = int(regions.max(initial=-1)) + 1
+    if n_reg < 2:
+        return regions
+    planes = []
+    for r in range(n_reg):
+        p = points[regions == r]
+        c = p.mean(axis=0)
+        _, s, vt = np.linalg.svd(p - c, full_matrices=False)
+        planes.append((c, vt[2], float(s[2] / np.sqrt(len(p)))))
+    idx = nbh.idx
+    ra = regions[:, None]
+    rb = regions[idx]
+    cross = nbh.valid & (ra >= 0) & (rb >= 0) & (rb != ra)
+    a = np.broadcast_to(ra, rb.shape)[cross].astype(np.int64)
+    b = rb[cross].astype(np.int64)
+    pairs = np.unique(np.column_stack([np.minimum(a, b), np.maximum(a, b)]), axis=0)
+    parent = list(range(n_reg))
+
+    def find(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    cos_t = np.cos(np.radians(max_angle_deg))
+    for i, j in pairs:
+        ci, ni, ri = planes[i]
+        cj, nj, rj = planes[j]
+        if abs(ni @ nj) < cos_t:
+            continue
+        if abs((cj - ci) @ ni) > max_offset_m + 2 * ri or abs((ci - cj) @ nj) > max_offset_m + 2 * rj:
+            continue
+        pi, pj = find(int(i)), find(int(j))
+        if pi != pj:
+            parent[max(pi, pj)] = min(pi, pj)
+    roots = np.array([find(r) for r in range(n_reg)])
+    _, new = np.unique(roots, return_inverse=True)
+    out = regions.copy()
+    ok = regions >= 0
+    out[ok] = new[regions[ok]].astype(np.int32)
+    return out

@@ -1,0 +1,500 @@
+"""Coarse-to-fine multi-seam detection (after Wei et al.), as a short sequence of timed, pure steps.
+
+    Capture -> prompts (given or automatic) -> segment -> seam ROI (bands where two masks meet)
+            -> organized cloud cropped to the ROI -> pass-through -> voxel grid -> KD-tree
+            -> normals + curvature -> region growing -> edge points between regions
+            -> seam candidates (concave junction or narrow gap) -> fit (line | curve)
+            -> refine from full-resolution points -> path points -> torch poses -> base frame
+
+Usable on its own: ``detect(load_capture(path), DetectParams())``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from perception.capture import Capture, PointCloud
+from perception.cloud import (
+    RegionParams,
+    grow_regions,
+    merge_coplanar_regions,
+    neighbourhoods,
+    normals_and_curvature,
+    pass_through,
+    voxel_downsample,
+)
+from perception.errors import NoSeamFound, PerceptionError
+from perception.organized import veil_mask
+from perception.path import TorchParams, interpolate_rows, sample_uniform, torch_poses
+from perception.seamfit import (
+    FullRes,
+    SeamGeometry,
+    SeamParams,
+    classify_junction_local,
+    fit_edge_path,
+    refine_curve,
+    refine_linear,
+    region_edges,
+)
+from perception.seams import DetectionResult, Seam
+from perception.segment_default import AutoPromptParams, GraphSegmenter, GraphSegmenterParams, auto_prompts, seam_roi
+from perception.segmentation import Segmenter, SurfaceMasks
+
+FloatArray = NDArray[np.float64]
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DetectParams:
+    """Everything that tunes detection. Lengths in metres, angles in degrees."""
+
+    crop: bool = True
+    roi_band_m: float = 0.010  # half-width of the seam band around where two masks meet
+    z_range_m: tuple[float, float] = (0.1, 3.0)
+    workspace_min_m: tuple[float, float, float] | None = None  # optional box, camera frame
+    workspace_max_m: tuple[float, float, float] | None = None
+    voxel_m: float = 0.003
+    veil_jump_m: float = 0.008
+    knn: int = 16
+    normal_radius_voxels: float = 2.5
+    method: Literal["refined", "paper"] = "refined"
+    regions: RegionParams = field(default_factory=RegionParams)
+    seams: SeamParams = field(default_factory=SeamParams)
+    torch: TorchParams = field(default_factory=TorchParams)
+    segmenter: GraphSegmenterParams = field(default_factory=GraphSegmenterParams)
+    auto_prompts: AutoPromptParams = field(default_factory=AutoPromptParams)
+
+
+class StepLog:
+    """Records the time and point count of each step."""
+
+    def __init__(self) -> None:
+        self.timing_s: dict[str, float] = {}
+        self.counts: dict[str, int] = {}
+
+    @contextmanager
+    def step(self, name: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timing_s[name] = self.timing_s.get(name, 0.0) + time.perf_counter() - t0
+
+
+@dataclass(frozen=True)
+class CoarseResult:
+    prompts_px: FloatArray
+    prompts_source: str
+    masks: SurfaceMasks
+    roi_mask: NDArray[np.bool_]
+    pairs: dict[tuple[int, int], int]
+
+
+def coarse_stage(
+    capture: Capture, points: NDArray[np.float32], params: DetectParams, segmenter: Segmenter, log: StepLog
+) -> CoarseResult:
+    with log.step("prompts"):
+        if capture.prompts_px is not None and len(capture.prompts_px):
+            prompts, source = capture.prompts_px, "prompts.json"
+        else:
+            prompts, source = (
+                auto_prompts(points, params=params.auto_prompts, segmenter_params=params.segmenter),
+                "auto",
+            )
+    if len(prompts) < 2:
+        raise NoSeamFound(f"only {len(prompts)} workpiece surface(s) prompted ({source}); a seam needs two")
+    with log.step("segment"):
+        masks = segmenter.segment(capture.color_rgb, capture.depth_m, prompts, points_camera=points)
+    with log.step("roi"):
+        z_med = float(np.nanmedian(capture.depth_m))
+        band_px = max(2, round(params.roi_band_m * capture.intrinsics.fx / max(z_med, 1e-3)))
+        roi = seam_roi(masks.labels, band_px=band_px)
+    return CoarseResult(prompts, source, masks, roi.mask, roi.pairs)
+
+
+def _regions_to_seams(
+    pts: FloatArray,
+    labels: NDArray[np.int32] | None,
+    params: DetectParams,
+    log: StepLog,
+    viewpoint: FloatArray,
+) -> list[SeamGeometry]:
+    """The fine stage on an unorganized cloud (camera frame)."""
+    sp = params.seams
+    with log.step("pass_through"):
+        keep = pass_through(
+            pts,
+            z_range_m=params.z_range_m,
+            box_min=None if params.workspace_min_m is None else np.asarray(params.workspace_min_m),
+            box_max=None if params.workspace_max_m is None else np.asarray(params.workspace_max_m),
+        )
+        pts = pts[keep]
+        lab = None if labels is None else labels[keep]
+    log.counts["pass_through"] = len(pts)
+    if len(pts) < 50:
+        raise NoSeamFound(f"only {len(pts)} points left after the pass-through filter")
+    with log.step("voxel"):
+        grid = voxel_downsample(pts, voxel_m=params.voxel_m, labels=lab)
+    log.counts["downsampled"] = len(grid.centroids)
+    with log.step("kdtree"):
+        nbh = neighbourhoods(grid.centroids, k=params.knn, radius_m=params.normal_radius_voxels * params.voxel_m)
+    with log.step("normals"):
+        normals, curvature = normals_and_curvature(grid.centroids, nbh, viewpoint=viewpoint)
+    with log.step("regions"):
+        # geometry alone decides the regions (as in the paper); mask labels only vote afterwards, so
+        # a mask that bleeds over a fold cannot split or join surfaces
+        regions = grow_regions(normals, curvature, nbh, params=params.regions)
+        regions = merge_coplanar_regions(grid.centroids, regions, nbh)
+    log.counts["regions"] = int(regions.max(initial=-1)) + 1
+    with log.step("candidates"):
+        edges = region_edges(regions, nbh, min_points=sp.min_edge_points, link_m=2.5 * params.voxel_m)
+        n_reg = int(regions.max(initial=-1)) + 1
+        ok_r = regions >= 0
+        region_normals = np.column_stack(
+            [np.bincount(regions[ok_r], weights=normals[ok_r, k], minlength=n_reg) for k in range(3)]
+        ).astype(np.float64).reshape(n_reg, 3)
+        region_normals /= np.maximum(np.linalg.norm(region_normals, axis=1, keepdims=True), 1e-12)
+        full = FullRes(pts, regions[grid.point_voxel], cKDTree(pts), region_normals, normals[grid.point_voxel])
+        cands = []
+        trees: dict[int, cKDTree] = {}
+
+        def tree_of(r: int) -> cKDTree:
+            if r not in trees:
+                trees[r] = cKDTree(grid.centroids[regions == r])
+            return trees[r]
+
+        for e in edges:
+            center_pts = np.vstack([grid.centroids[e.points_a], grid.centroids[e.points_b]])
+            joint, na, nb, rms = classify_junction_local(center_pts, tree_of(e.a), tree_of(e.b), sp, viewpoint)
+            if joint != "fillet":
+                continue  # convex edges are outer edges; coplanar neighbours are one surface
+            cands.append((e, joint, center_pts, na, nb, rms))
+    log.counts["candidates"] = len(cands)
+    out: list[SeamGeometry] = []
+    with log.step("fit"):
+        fitted = []
+        for e, _joint, center_pts, na, nb, rms in cands:
+            kind, line = fit_edge_path(center_pts, sp, params.voxel_m)
+            fitted.append(_Cand(kind, line, (e.a,), (e.b,), na, nb, rms, len(center_pts)))
+        fitted = _group_collinear(fitted, voxel_m=params.voxel_m)
+    log.counts["seam_groups"] = len(fitted)
+    with log.step("refine"):
+        for c in fitted:
+            labs = (_majority(grid.labels, regions, c.regions_a), _majority(grid.labels, regions, c.regions_b))
+            out.extend(_finish(full, c, labs, params, viewpoint))
+    return out
+
+
+@dataclass(frozen=True)
+class _Cand:
+    """A seam candidate: the coarse centre line and the region(s) on each side."""
+
+    kind: str
+    line: FloatArray
+    regions_a: tuple[int, ...]
+    regions_b: tuple[int, ...]
+    na: FloatArray
+    nb: FloatArray
+    rms: float
+    support: int
+
+
+def _majority(voxel_labels: NDArray[np.int32], regions: NDArray[np.int32], ids: tuple[int, ...]) -> int:
+    lab = voxel_labels[np.isin(regions, ids)]
+    return int(np.bincount(lab + 1).argmax()) - 1 if lab.size else -1
+
+
+def _group_collinear(
+    cands: list[_Cand], *, voxel_m: float, max_angle_deg: float = 15.0, max_gap_m: float = 0.06
+) -> list[_Cand]:
+    """Join linear candidates that are pieces of one junction (a face split into several regions, or
+    edge points interrupted by dropouts): same line within a voxel or so, gaps under ``max_gap_m``.
+    Joining is generous on purpose: the refinement splits the line again wherever the full-resolution
+    points show a real interruption."""
+    lin = [c for c in cands if c.kind == "linear"]
+    rest = [c for c in cands if c.kind != "linear"]
+    cos_t = np.cos(np.radians(max_angle_deg))
+    used = [False] * len(lin)
+    out: list[_Cand] = []
+    for i, ci in enumerate(lin):
+        if used[i]:
+            continue
+        used[i] = True
+        group = [ci]
+        changed = True
+        while changed:
+            changed = False
+            for j, cj in enumerate(lin):
+                if used[j]:
+                    continue
+                if any(_same_line(g, cj, cos_t, 1.5 * voxel_m, max_gap_m) for g in group):
+                    used[j] = True
+                    group.append(cj)
+                    changed = True
+        out.append(_merge(group))
+    return out + rest
+
+
+def _same_line(a: _Cand, b: _Cand, cos_t: float, max_dist: float, max_gap: float) -> bool:
+    """b continues a: both of b's ends lie on a's line (short pieces have poor directions of their own,
+    so the test uses the longer piece's line), the gap between them is short, and the surfaces agree."""
+    if np.linalg.norm(a.line[-1] - a.line[0]) < np.linalg.norm(b.line[-1] - b.line[0]):
+        a, b = b, a
+    da = a.line[-1] - a.line[0]
+    la = float(np.linalg.norm(da))
+    da = da / la
+    rel = b.line[[0, -1]] - a.line[0]
+    t = rel @ da
+    if np.linalg.norm(rel - np.outer(t, da), axis=1).max() > max_dist:
+        return False
+    gap = max(t.min() - la, -t.max(), 0.0)
+    if gap > max_gap:
+        return False
+    # the same two surfaces: the normals on each side must agree (in some pairing)
+    return bool(min(a.na @ b.na, a.nb @ b.nb) > cos_t or min(a.na @ b.nb, a.nb @ b.na) > cos_t)
+
+
+def _merge(group: list[_Cand]) -> _Cand:
+    if len(group) == 1:
+        return group[0]
+    ref = max(group, key=lambda c: c.support)
+    d = ref.line[-1] - ref.line[0]
+    d /= np.linalg.norm(d)
+    regions_a: list[int] = []
+    regions_b: list[int] = []
+    ts = []
+    for c in group:
+        same = min(ref.na @ c.na, ref.nb @ c.nb) >= min(ref.na @ c.nb, ref.nb @ c.na)
+        regions_a += list(c.regions_a if same else c.regions_b)
+        regions_b += list(c.regions_b if same else c.regions_a)
+        ts += [(p - ref.line[0]) @ d for p in c.line]
+    line = np.array([ref.line[0] + min(ts) * d, ref.line[0] + max(ts) * d])
+    return _Cand(
+        "linear",
+        line,
+        tuple(sorted(set(regions_a))),
+        tuple(sorted(set(regions_b))),
+        ref.na,
+        ref.nb,
+        max(c.rms for c in group),
+        sum(c.support for c in group),
+    )
+
+
+def _finish(
+    full: FullRes, c: _Cand, labs: tuple[int, int], params: DetectParams, viewpoint: FloatArray
+) -> list[SeamGeometry]:
+    sp = params.seams
+    ra, rb = c.regions_a, c.regions_b
+    line = c.line
+    if params.method == "paper" or not sp.refine:
+        seg = np.linalg.norm(np.diff(line, axis=0), axis=1).sum()
+        if seg < sp.min_length_m:
+            return []
+        nn = len(line)
+        kind: Literal["linear", "curved"] = "curved" if c.kind == "curved" else "linear"
+        return [
+            SeamGeometry(
+                kind,
+                "fillet",
+                line,
+                np.tile(c.na, (nn, 1)),
+                np.tile(c.nb, (nn, 1)),
+                (ra[0], rb[0]),
+                labs,
+                c.support,
+                c.rms,
+            )
+        ]
+    if c.kind == "linear":
+        res_l = refine_linear(full, ra, rb, line, c.na, c.nb, sp, viewpoint)
+        if res_l is None:
+            return []
+        ends, n_a, n_b, r = res_l
+        pieces = ends.reshape(-1, 2, 3)
+        return [
+            SeamGeometry(
+                "linear", "fillet", e, np.tile(n_a, (2, 1)), np.tile(n_b, (2, 1)), (ra[0], rb[0]), labs, c.support, r
+            )
+            for e in pieces
+        ]
+    res_c = refine_curve(full, ra, rb, line, sp, viewpoint)
+    if res_c is None:
+        return []
+    pts, n_a, n_b, r = res_c
+    return [SeamGeometry("curved", "fillet", pts, n_a, n_b, (ra[0], rb[0]), labs, c.support, r)]
+
+
+def _to_seams(geoms: list[SeamGeometry], params: DetectParams, frame_X: FloatArray | None) -> list[Seam]:
+    """Sample paths, build torch poses, order deterministically and express in the output frame."""
+    seams: list[Seam] = []
+    for g in geoms:
+        line = g.points
+        seg = np.linalg.norm(np.diff(line, axis=0), axis=1)
+        s_src = np.concatenate([[0.0], np.cumsum(seg)])
+        pts, s_new = sample_uniform(line, params.torch.step_m)
+        na = interpolate_rows(s_src, g.normals_a, s_new, unit=True)
+        nb = interpolate_rows(s_src, g.normals_b, s_new, unit=True)
+        poses = torch_poses(pts, na, nb, params=params.torch)
+        conf = float(np.clip(min(1.0, g.support / 60.0) * np.exp(-g.rms_m / 0.001), 0.0, 1.0))
+        seams.append(
+            Seam(
+                id=0,
+                kind=g.kind,
+                points=pts,
+                poses=poses,
+                length_m=float(s_new[-1]),
+                confidence=conf,
+                surfaces=(min(g.labels), max(g.labels)),
+            )
+        )
+    frame: Literal["camera", "base"] = "camera"
+    if frame_X is not None:
+        seams = [s.transformed(frame_X, "base") for s in seams]
+        frame = "base"
+    seams = [_orient(s, frame) for s in seams]
+    seams.sort(key=lambda s: (round(float(s.points.mean(axis=0)[0]), 3), round(float(s.points.mean(axis=0)[1]), 3)))
+    return [replace(s, id=i) for i, s in enumerate(seams)]
+
+
+def _orient(seam: Seam, frame: str) -> Seam:
+    """Deterministic travel direction: vertical seams (in the base frame) upwards, others towards +x
+    (then +y) of the output frame."""
+    d = seam.points[-1] - seam.points[0]
+    d = d / max(np.linalg.norm(d), 1e-12)
+    if frame == "base" and abs(d[2]) > 0.7:
+        flip = d[2] < 0
+    elif abs(d[0]) >= 0.3:
+        flip = d[0] < 0
+    else:
+        flip = d[1] < 0
+    if not flip:
+        return seam
+    pts = seam.points[::-1].copy()
+    poses = seam.poses[::-1].copy()
+    poses[:, :3, 0] *= -1  # travel direction reverses: x -> -x, y -> -y keeps z and a right-handed frame
+    poses[:, :3, 1] *= -1
+    return replace(seam, points=pts, poses=poses)
+
+
+def detect(
+    capture: Capture, params: DetectParams | None = None, *, segmenter: Segmenter | None = None
+) -> DetectionResult:
+    """Detect every seam in ``capture``. Raises NoSeamFound (with the step that emptied it)."""
+    p = params or DetectParams()
+    seg = segmenter or GraphSegmenter(p.segmenter)
+    log = StepLog()
+    t0 = time.perf_counter()
+    with log.step("backproject"):
+        organized = capture.points_camera()
+    valid = np.isfinite(organized[..., 2])
+    log.counts["raw"] = int(valid.sum())
+    coarse = coarse_stage(capture, organized, p, seg, log)
+    t_coarse = time.perf_counter() - t0
+    with log.step("veil"):
+        # flying ("veil") pixels at occlusion edges hang between foreground and background; they would
+        # join surfaces that do not touch. Concave seams have no depth jump, so they lose nothing.
+        veil = veil_mask(organized, jump_m=p.veil_jump_m) & valid
+    log.counts["veil"] = int(veil.sum())
+    with log.step("crop"):
+        keep = valid & ~veil
+        if p.crop:
+            keep &= coarse.roi_mask
+        pts = organized[keep].astype(np.float64)
+        labels = coarse.masks.labels[keep]
+    log.counts["cropped"] = len(pts)
+    t1 = time.perf_counter()
+    geoms = _regions_to_seams(pts, labels, p, log, viewpoint=np.zeros(3))
+    t_fine = time.perf_counter() - t1
+    if not geoms:
+        raise NoSeamFound(
+            f"{log.counts.get('candidates', 0)} junction(s) between surfaces were examined but none is a concave "
+            "seam or a narrow gap"
+        )
+    t2 = time.perf_counter()
+    seams = _to_seams(geoms, p, capture.X_base_camera)
+    t_path = time.perf_counter() - t2
+    total = time.perf_counter() - t0
+    timing = {"coarse": t_coarse, "fine": t_fine, "path": t_path, "total": total}
+    timing.update({f"step_{k}": v for k, v in log.timing_s.items()})
+    info: dict[str, Any] = {
+        "prompts": coarse.prompts_px.round(1).tolist(),
+        "prompts_source": coarse.prompts_source,
+        "segmenter": getattr(seg, "name", type(seg).__name__),
+        "method": p.method,
+        "voxel_m": p.voxel_m,
+        "crop": p.crop,
+        "removed_share": round(1.0 - log.counts["cropped"] / max(log.counts["raw"], 1), 4),
+        "counts": dict(log.counts),
+    }
+    counts = {
+        "raw": log.counts["raw"],
+        "cropped": log.counts["cropped"],
+        "downsampled": log.counts.get("downsampled", 0),
+    }
+    return DetectionResult(
+        frame="base" if capture.X_base_camera is not None else "camera",
+        seams=tuple(seams),
+        point_counts=counts,
+        timing_s=timing,
+        info=info,
+        artifacts={"masks": coarse.masks, "roi": coarse.roi_mask},
+    )
+
+
+def detect_cloud(cloud: PointCloud, params: DetectParams | None = None) -> DetectionResult:
+    """Fine stage only, on an unorganized cloud (PLY/PCD): no segmentation, no crop."""
+    p = params or DetectParams()
+    if len(cloud.points) < 50:
+        raise PerceptionError(f"{cloud.source}: only {len(cloud.points)} points")
+    log = StepLog()
+    t0 = time.perf_counter()
+    log.counts["raw"] = len(cloud.points)
+    log.counts["cropped"] = len(cloud.points)
+    # the viewpoint: clouds in a robot or world frame are not seen from their origin; use a point
+    # above the cloud's centroid along the axis of least spread, on the side of most normals
+    viewpoint = _guess_viewpoint(cloud.points)
+    geoms = _regions_to_seams(cloud.points, None, p, log, viewpoint=viewpoint)
+    if not geoms:
+        raise NoSeamFound(f"{log.counts.get('candidates', 0)} junction(s) examined, none is a concave seam")
+    seams = _to_seams(geoms, p, None)
+    total = time.perf_counter() - t0
+    timing = {"coarse": 0.0, "fine": total, "total": total} | {f"step_{k}": v for k, v in log.timing_s.items()}
+    return DetectionResult(
+        frame="camera",
+        seams=tuple(seams),
+        point_counts={
+            "raw": log.counts["raw"],
+            "cropped": log.counts["cropped"],
+            "downsampled": log.counts.get("downsampled", 0),
+        },
+        timing_s=timing,
+        info={
+            "method": p.method,
+            "voxel_m": p.voxel_m,
+            "viewpoint": viewpoint.round(4).tolist(),
+            "counts": dict(log.counts),
+        },
+    )
+
+
+def _guess_viewpoint(points: FloatArray) -> FloatArray:
+    c = points.mean(axis=0)
+    if np.linalg.norm(c) > 0.05 and abs(c[2]) > 0.05 and np.all(np.abs(c[:2]) < 2 * abs(c[2])):
+        # looks like a camera-frame cloud (in front of the origin): the camera is the viewpoint
+        return np.zeros(3)
+    _, _, vt = np.linalg.svd(points - c, full_matrices=False)
+    up = vt[2]
+    if up[2] < 0:
+        up = -up  # robot/world frames: z up, the sensor looks down
+    extent = float(np.ptp(points, axis=0).max())
+    return np.asarray(c + up * max(extent, 0.3))

@@ -1,0 +1,684 @@
+"""From regions to seams: edge points between regions, seam candidates, the paper's line / curve fits,
+and the refinement from full-resolution points that goes below the voxel size.
+
+Geometry conventions: camera frame, metres; surface normals point out of the material, towards the
+camera (the side a torch comes from).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from perception.cloud import Neighbourhoods
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SeamParams:
+    min_edge_points: int = 6
+    patch_radius_m: float = 0.012  # surface points this close to the junction describe it
+    min_fold_deg: float = 25.0  # surfaces meeting at a sharper turn than this can form a fillet
+    max_coplanar_deg: float = 8.0  # surfaces this parallel can only form a butt joint
+    concave_margin_m: float = 0.0005
+    max_gap_m: float = 0.005  # widest butt-joint gap
+    curved_sagitta_m: float = 0.0025  # a fitted line this far from the binned edge path means "curved"
+    min_length_m: float = 0.012
+    end_trim_m: float = 0.002  # keep path ends this far inside the measured extent
+    refine: bool = True
+    support_bin_m: float = 0.002
+    max_hole_m: float = 0.008  # a longer stretch without both faces seen splits the seam (occluder)
+    refine_exclude_m: float = 0.0012  # ignore points this close to the junction (mixed, noisy)
+    refine_band_m: float = 0.010
+    plane_gate_sigma: float = 3.0
+    slab_half_width_m: float = 0.0025  # cross-section slab for curved seams
+    curve_step_m: float = 0.002
+
+
+@dataclass(frozen=True)
+class SeamGeometry:
+    """A seam before path sampling: a dense centre line with the two surface normals along it.
+
+    points: (N, 3) ordered centre line; normals_a / normals_b: (N, 3) outward unit normals;
+    regions: the two region ids; kind; support: number of edge points behind it; rms_m: plane-fit RMS.
+    """
+
+    kind: Literal["linear", "curved"]
+    joint: Literal["fillet", "butt"]
+    points: FloatArray
+    normals_a: FloatArray
+    normals_b: FloatArray
+    regions: tuple[int, int]
+    labels: tuple[int, int]
+    support: int
+    rms_m: float
+
+
+# --------------------------------------------------------------------------------------------------
+# Small geometric helpers
+
+
+def fit_plane(p: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+    """Least-squares plane: (centroid, unit normal, RMS distance)."""
+    c = p.mean(axis=0)
+    _, s, vt = np.linalg.svd(p - c, full_matrices=False)
+    return c, vt[2], float(s[2] / np.sqrt(max(len(p), 1)))
+
+
+def fit_plane_robust(
+    p: FloatArray, *, sigma_gate: float = 3.0, iters: int = 3
+) -> tuple[FloatArray, FloatArray, float, NDArray[np.bool_]]:
+    """Plane fit with iterative ``sigma_gate`` * RMS outlier rejection; returns the inlier mask too."""
+    keep = np.ones(len(p), bool)
+    c, n, rms = fit_plane(p)
+    for _ in range(iters):
+        d = np.abs((p - c) @ n)
+        new = d <= max(sigma_gate * rms, 1e-5)
+        if new.sum() < 3 or np.array_equal(new, keep):
+            break
+        keep = new
+        c, n, rms = fit_plane(p[keep])
+    return c, n, rms, keep
+
+
+def fit_line(p: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Least-squares 3D line through points: (centroid, unit direction)."""
+    c = p.mean(axis=0)
+    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+    return c, vt[0]
+
+
+def orient_towards(n: FloatArray, p: FloatArray, viewpoint: FloatArray) -> FloatArray:
+    return n if float(n @ (viewpoint - p)) >= 0 else -n
+
+
+def plane_intersection(
+    c1: FloatArray, n1: FloatArray, c2: FloatArray, n2: FloatArray, near: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Line of two planes: (the point on it closest to ``near``, unit direction)."""
+    d = np.cross(n1, n2)
+    d /= np.linalg.norm(d)
+    # minimise |x - near|^2 subject to n1.x = n1.c1, n2.x = n2.c2
+    A = np.array([[2.0, 0, 0, n1[0], n2[0]], [0, 2.0, 0, n1[1], n2[1]], [0, 0, 2.0, n1[2], n2[2]],
+                  [n1[0], n1[1], n1[2], 0, 0], [n2[0], n2[1], n2[2], 0, 0]])  # fmt: skip
+    b = np.concatenate([2 * near, [n1 @ c1, n2 @ c2]])
+    x = np.linalg.solve(A, b)
+    return x[:3], d
+
+
+def _components(points: FloatArray, radius: float) -> NDArray[np.int64]:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    n = len(points)
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, lab = connected_components(g, directed=False)
+    return lab.astype(np.int64)
+
+
+def order_along_curve(points: FloatArray, radius: float) -> FloatArray:
+    """(N,) parameter along a thin curve-like point set: geodesic distance from one end."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    tree = cKDTree(points)
+    pairs = tree.query_pairs(radius, output_type="ndarray")
+    n = len(points)
+    w = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
+    g = coo_matrix((w, (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+    d0 = dijkstra(g, directed=False, indices=0)
+    d0[~np.isfinite(d0)] = -1
+    end = int(np.argmax(d0))
+    s = dijkstra(g, directed=False, indices=end)
+    s[~np.isfinite(s)] = np.nan
+    return np.asarray(s)
+
+
+# --------------------------------------------------------------------------------------------------
+# Candidates
+
+
+@dataclass(frozen=True)
+class EdgeSet:
+    """Edge points between two regions a < b (indices into the voxel cloud), one connected piece."""
+
+    a: int
+    b: int
+    points_a: NDArray[np.int64]
+    points_b: NDArray[np.int64]
+
+
+def region_edges(regions: NDArray[np.int32], nbh: Neighbourhoods, *, min_points: int, link_m: float) -> list[EdgeSet]:
+    """Points of each region that have a neighbour in another region, grouped by region pair and split
+    into connected pieces (two regions may meet in more than one place)."""
+    idx = nbh.idx
+    ra = regions[:, None]
+    rb = regions[idx]
+    cross = nbh.valid & (ra >= 0) & (rb >= 0) & (rb != ra)
+    rows, cols = np.nonzero(cross)
+    if len(rows) == 0:
+        return []
+    r1 = regions[rows].astype(np.int64)
+    r2 = rb[rows, cols].astype(np.int64)
+    lo, hi = np.minimum(r1, r2), np.maximum(r1, r2)
+    key = lo * (int(regions.max()) + 1) + hi
+    out: list[EdgeSet] = []
+    for k in np.unique(key):
+        sel = key == k
+        pts = np.unique(np.concatenate([rows[sel], idx[rows[sel], cols[sel]]]))
+        a, b = int(lo[sel][0]), int(hi[sel][0])
+        if len(pts) < 2 * min_points:
+            continue
+        out.extend(_split_pieces(a, b, pts, regions, min_points, link_m, nbh))
+    return out
+
+
+def _split_pieces(a, b, pts, regions, min_points, link_m, nbh) -> list[EdgeSet]:
+    coords = nbh.tree.data[pts]
+    lab = _components(coords, link_m)
+    pieces = []
+    for c in np.unique(lab):
+        sel = pts[lab == c]
+        pa = sel[regions[sel] == a]
+        pb = sel[regions[sel] == b]
+        if len(pa) >= min_points and len(pb) >= min_points:
+            pieces.append(EdgeSet(a, b, pa, pb))
+    return pieces
+
+
+# --------------------------------------------------------------------------------------------------
+# Fitting and refinement
+
+
+@dataclass(frozen=True)
+class FullRes:
+    """Full-resolution points of the cropped cloud with their region (via their voxel) and a KD-tree;
+    ``region_normals`` (R, 3) is each region's mean unit normal."""
+
+    points: FloatArray
+    regions: NDArray[np.int32]
+    tree: cKDTree
+    region_normals: FloatArray
+    normals: FloatArray  # (N, 3) each point's voxel normal
+
+    def compatible(self, idx: NDArray[np.int64], n: FloatArray, max_angle_deg: float = 15.0) -> NDArray[np.bool_]:
+        """Points (by index) that could be part of a face with normal ``n``: regions facing the same way
+        (fragments of that face), or unassigned points whose own normal is within 30 degrees."""
+        reg = self.regions[idx]
+        ok = (reg < 0) & (np.abs(self.normals[idx] @ n) >= np.cos(np.radians(30.0)))
+        if len(self.region_normals):
+            cos = np.abs(self.region_normals @ n)
+            ok |= (reg >= 0) & (cos[np.maximum(reg, 0)] >= np.cos(np.radians(max_angle_deg)))
+        return ok
+
+
+def _indices_near_polyline(full: FullRes, line: FloatArray, radius: float) -> NDArray[np.int64]:
+    """Indices of full-res points within about ``radius`` of a polyline (query balls along it)."""
+    from perception.evaluate import resample_polyline
+
+    samples = resample_polyline(line, radius)
+    hits = full.tree.query_ball_point(samples, radius * 1.5)
+    if not len(hits):
+        return np.zeros(0, np.int64)
+    return np.unique(np.concatenate([np.asarray(h, dtype=np.int64) for h in hits]))
+
+
+def _points_near_polyline(full: FullRes, region: int | tuple[int, ...], line: FloatArray, radius: float) -> FloatArray:
+    """Full-res points of ``region`` within about ``radius`` of a polyline."""
+    idx = _indices_near_polyline(full, line, radius)
+    if idx.size == 0:
+        return np.zeros((0, 3))
+    regs = np.atleast_1d(np.asarray(region))
+    return full.points[idx[np.isin(full.regions[idx], regs)]]
+
+
+def classify_junction(
+    pa: FloatArray, pb: FloatArray, params: SeamParams, viewpoint: FloatArray
+) -> tuple[str, FloatArray, FloatArray, float]:
+    """'fillet' | 'butt' | 'convex' | 'none' for two local surface patches; their normals; fit RMS."""
+    ca, na, rms_a = fit_plane(pa)
+    cb, nb, rms_b = fit_plane(pb)
+    na = orient_towards(na, ca, viewpoint)
+    nb = orient_towards(nb, cb, viewpoint)
+    angle = float(np.degrees(np.arccos(np.clip(abs(na @ nb), -1.0, 1.0))))
+    rms = max(rms_a, rms_b)
+    if angle >= params.min_fold_deg:
+        # concave when each patch lies on the outer (torch) side of the other's plane
+        if na @ (cb - ca) > params.concave_margin_m and nb @ (ca - cb) > params.concave_margin_m:
+            return "fillet", na, nb, rms
+        return "convex", na, nb, rms
+    if angle <= params.max_coplanar_deg and abs(na @ (cb - ca)) < 0.002:
+        return "butt", na, nb, rms
+    return "none", na, nb, rms
+
+
+def classify_junction_local(
+    edge_points: FloatArray,
+    tree_a: cKDTree,
+    tree_b: cKDTree,
+    params: SeamParams,
+    viewpoint: FloatArray,
+    *,
+    anchor_spacing_m: float = 0.008,
+) -> tuple[str, FloatArray, FloatArray, float]:
+    """Classify a junction from local plane pairs at anchors along it (a curved surface is planar only
+    locally). Majority vote of the anchors; the normals returned are the mean of the winning anchors'."""
+    anchors: list[FloatArray] = []
+    for p in edge_points[np.argsort(edge_points[:, 0] + 1e3 * edge_points[:, 1])]:
+        if all(np.linalg.norm(p - q) >= anchor_spacing_m for q in anchors):
+            anchors.append(p)
+    votes: dict[str, list[tuple[FloatArray, FloatArray, float]]] = {}
+    r = params.patch_radius_m
+    for q in anchors:
+        ia = tree_a.query_ball_point(q, r)
+        ib = tree_b.query_ball_point(q, r)
+        if len(ia) < 6 or len(ib) < 6:
+            continue
+        joint, na, nb, rms = classify_junction(tree_a.data[ia], tree_b.data[ib], params, viewpoint)
+        votes.setdefault(joint, []).append((na, nb, rms))
+    if not votes:
+        return "none", np.zeros(3), np.zeros(3), 0.0
+    joint = max(votes, key=lambda k: len(votes[k]))
+    na = np.mean([v[0] for v in votes[joint]], axis=0)
+    nb = np.mean([v[1] for v in votes[joint]], axis=0)
+    return joint, na / np.linalg.norm(na), nb / np.linalg.norm(nb), float(np.median([v[2] for v in votes[joint]]))
+
+
+def fit_edge_path(edge_points: FloatArray, params: SeamParams, voxel_m: float) -> tuple[str, FloatArray]:
+    """The paper's fit of the edge points: a least-squares line, or, when the points bend away from it,
+    a smooth curve in the plane the seam lies in. Returns (kind, ordered (N, 3) centre line)."""
+    from scipy.interpolate import splev, splprep
+
+    c, d = fit_line(edge_points)
+    t = (edge_points - c) @ d
+    # binned mean offsets from the line: noise and the two-sided edge spread average out, a bend does not
+    nbins = max(2, int((t.max() - t.min()) / max(3 * voxel_m, 0.006)))
+    bins = np.clip(((t - t.min()) / max(t.max() - t.min(), 1e-9) * nbins).astype(int), 0, nbins - 1)
+    resid = edge_points - (c + t[:, None] * d)
+    means = np.array([resid[bins == k].mean(axis=0) for k in range(nbins) if np.any(bins == k)])
+    sagitta = float(np.linalg.norm(means, axis=1).max()) if len(means) else 0.0
+    if sagitta < params.curved_sagitta_m:
+        return "linear", np.array([c + t.min() * d, c + t.max() * d])
+    # curved: the plane of the seam, then a smoothing spline through binned centroids ordered along it
+    pc, pn, _ = fit_plane(edge_points)
+    flat = edge_points - np.outer((edge_points - pc) @ pn, pn)
+    s = order_along_curve(flat, 2.5 * voxel_m)
+    ok = np.isfinite(s)
+    flat, s = flat[ok], s[ok]
+    step = max(2 * voxel_m, 0.004)
+    nb = max(4, int(s.max() / step))
+    sb = np.clip((s / max(s.max(), 1e-9) * nb).astype(int), 0, nb - 1)
+    cent = np.array([flat[sb == k].mean(axis=0) for k in range(nb) if np.any(sb == k)])
+    if len(cent) < 4:
+        return "linear", np.array([c + t.min() * d, c + t.max() * d])
+    tck, _ = splprep(cent.T, s=len(cent) * (0.5 * voxel_m) ** 2, k=3)
+    dense = np.array(splev(np.linspace(0, 1, max(20, len(cent) * 4)), tck)).T
+    return "curved", dense
+
+
+def refine_linear(
+    full: FullRes,
+    ra: int | tuple[int, ...],
+    rb: int | tuple[int, ...],
+    line: FloatArray,
+    na0: FloatArray,
+    nb0: FloatArray,
+    params: SeamParams,
+    viewpoint: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
+    """Intersect planes fitted to the full-resolution points of both surfaces near the seam.
+
+    1. Seed: the regions' points near the coarse line give the first plane pair.
+    2. Iterate: every full-resolution point near the line joins the face whose plane it is close to
+       (regions facing another way are kept out), points near the junction (a few sigma) and near the
+       seam's ends (where a third face meets it) are left out, the planes are refitted and intersected.
+    3. Track: while both faces still support the line at an end of the search window, the window grows
+       along the line, so a seam is found whole even when region growing saw only a piece of it.
+    Returns the end points ((2, 3), or (K, 2, 3) when an occluder splits the seam), both outward
+    normals and the plane-fit RMS; None when a surface has too few points.
+    """
+    p0, p1 = line[0], line[-1]
+    d = (p1 - p0) / np.linalg.norm(p1 - p0)
+    R = params.refine_band_m
+    center, direction = 0.5 * (p0 + p1), d
+    half = 0.5 * float(np.linalg.norm(p1 - p0))
+    window = (-half - R, half + R)
+    idx = _indices_near_polyline(full, _segment(center, direction, window), R)
+    reg = full.regions[idx]
+    in_a = np.isin(reg, np.atleast_1d(ra))
+    in_b = np.isin(reg, np.atleast_1d(rb))
+    if in_a.sum() < 20 or in_b.sum() < 20:
+        return None
+    exclude = max(params.refine_exclude_m, 0.5 * R / 3)
+    t_lo, t_hi = -np.inf, np.inf
+    fit = None
+    runs: list[tuple[float, float]] = []
+    for it in range(12):
+        pts = full.points[idx]
+        fit = _fit_plane_pair(pts, in_a, in_b, center, direction, exclude, R, (t_lo, t_hi), params, viewpoint)
+        if fit is None:
+            return None
+        ca, na, rms_a, cb, nb, rms_b = fit
+        new_center, direction = plane_intersection(ca, na, cb, nb, center)
+        if direction @ d < 0:
+            direction = -direction
+        shift = float((new_center - center) @ direction)
+        center = new_center
+        window = (window[0] - shift, window[1] - shift)
+        exclude = max(params.refine_exclude_m, 2.5 * max(rms_a, rms_b))
+        in_a, in_b = _membership(full, idx, pts, ca, na, rms_a, cb, nb, rms_b, params)
+        runs = _runs_for(pts, in_a, in_b, center, direction, exclude, params)
+        if not runs:
+            return None
+        lo, hi = runs[0][0], runs[-1][1]
+        margin = max(0.003, 1.5 * exclude)
+        if hi - lo > 4 * margin:
+            t_lo, t_hi = lo + margin, hi - margin
+        # track: grow the window where the seam reaches its edge
+        grow_lo = lo < window[0] + R
+        grow_hi = hi > window[1] - R
+        if it >= 2 and not (grow_lo or grow_hi):
+            break
+        if grow_lo or grow_hi:
+            step = max(0.03, 0.5 * (window[1] - window[0]))
+            window = (window[0] - step * grow_lo, window[1] + step * grow_hi)
+            idx = _indices_near_polyline(full, _segment(center, direction, window), R)
+            pts = full.points[idx]
+            in_a, in_b = _membership(full, idx, pts, ca, na, rms_a, cb, nb, rms_b, params)
+    assert fit is not None
+    ca, na, rms_a, cb, nb, rms_b = fit
+    segments = []
+    for lo, hi in runs:
+        lo, hi = lo + params.end_trim_m, hi - params.end_trim_m
+        if hi - lo >= params.min_length_m:
+            segments.append(np.array([center + lo * direction, center + hi * direction]))
+    if not segments:
+        return None
+    ends = segments[0] if len(segments) == 1 else np.array(segments)
+    return ends, na, nb, max(rms_a, rms_b)
+
+
+def _segment(center: FloatArray, direction: FloatArray, window: tuple[float, float]) -> FloatArray:
+    return np.array([center + window[0] * direction, center + window[1] * direction])
+
+
+def _fit_plane_pair(
+    pts: FloatArray,
+    in_a: NDArray[np.bool_],
+    in_b: NDArray[np.bool_],
+    center: FloatArray,
+    direction: FloatArray,
+    exclude: float,
+    band: float,
+    t_range: tuple[float, float],
+    params: SeamParams,
+    viewpoint: FloatArray,
+) -> tuple[FloatArray, FloatArray, float, FloatArray, FloatArray, float] | None:
+    rel = pts - center
+    t = rel @ direction
+    dist_line = np.linalg.norm(rel - np.outer(t, direction), axis=1)
+    use = (dist_line > exclude) & (dist_line < band) & (t > t_range[0]) & (t < t_range[1])
+    sel_a, sel_b = use & in_a, use & in_b
+    if sel_a.sum() < 10 or sel_b.sum() < 10:
+        return None
+    ca, na, rms_a, _ = fit_plane_robust(pts[sel_a], sigma_gate=params.plane_gate_sigma)
+    cb, nb, rms_b, _ = fit_plane_robust(pts[sel_b], sigma_gate=params.plane_gate_sigma)
+    na = orient_towards(na, ca, viewpoint)
+    nb = orient_towards(nb, cb, viewpoint)
+    if abs(na @ nb) > np.cos(np.radians(5.0)):
+        return None
+    return ca, na, rms_a, cb, nb, rms_b
+
+
+def _membership(
+    full: FullRes,
+    idx: NDArray[np.int64],
+    pts: FloatArray,
+    ca: FloatArray,
+    na: FloatArray,
+    rms_a: float,
+    cb: FloatArray,
+    nb: FloatArray,
+    rms_b: float,
+    params: SeamParams,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Each point joins the face whose plane it is near (within a few sigma, and nearer than to the
+    other), provided its region faces that way."""
+    da = np.abs((pts - ca) @ na)
+    db = np.abs((pts - cb) @ nb)
+    gate_a = params.plane_gate_sigma * max(rms_a, 2e-4)
+    gate_b = params.plane_gate_sigma * max(rms_b, 2e-4)
+    in_a = (da < gate_a) & (da < db) & full.compatible(idx, na)
+    in_b = (db < gate_b) & (db <= da) & full.compatible(idx, nb)
+    return in_a, in_b
+
+
+def _runs_for(
+    both: FloatArray,
+    in_a: NDArray[np.bool_],
+    in_b: NDArray[np.bool_],
+    center: FloatArray,
+    direction: FloatArray,
+    exclude: float,
+    params: SeamParams,
+) -> list[tuple[float, float]]:
+    """Only points clearly on one face count (beyond the exclusion zone, so the other face's plane cannot
+    claim them). The seam runs where both faces are seen; a hole longer than ``max_hole_m`` splits it."""
+    rel = both - center
+    t = rel @ direction
+    dist_line = np.linalg.norm(rel - np.outer(t, direction), axis=1)
+    near = (dist_line > max(0.0015, exclude)) & (dist_line < max(0.006, exclude + 0.004))
+    ta, tb = t[near & in_a], t[near & in_b]
+    if len(ta) < 5 or len(tb) < 5:
+        return []
+    return supported_runs(ta, tb, bin_m=params.support_bin_m, max_hole_m=params.max_hole_m)
+
+
+def supported_runs(ta: FloatArray, tb: FloatArray, *, bin_m: float, max_hole_m: float) -> list[tuple[float, float]]:
+    """Intervals of the seam parameter where both faces have points (bins of ``bin_m``), joined across
+    holes up to ``max_hole_m``. Ends are the outermost supporting points of each run (robust: a bin
+    counts once it holds points of both faces)."""
+    t0 = min(ta.min(), tb.min())
+    nb = int((max(ta.max(), tb.max()) - t0) / bin_m) + 1
+    ha = np.bincount(((ta - t0) / bin_m).astype(int), minlength=nb)[:nb]
+    hb = np.bincount(((tb - t0) / bin_m).astype(int), minlength=nb)[:nb]
+    # a bin counts when both faces are there in earnest: a few stray points (a third face's corner,
+    # flying pixels) do not extend a seam
+    ok = (ha >= max(1.0, 0.3 * np.median(ha[ha > 0]))) & (hb >= max(1.0, 0.3 * np.median(hb[hb > 0])))
+    runs: list[tuple[int, int]] = []
+    max_hole = int(np.ceil(max_hole_m / bin_m))
+    for i in (int(x) for x in np.flatnonzero(ok)):
+        if runs and i - runs[-1][1] - 1 <= max_hole:
+            runs[-1] = (runs[-1][0], i)
+        else:
+            runs.append((i, i))
+    out = []
+    for a, b in runs:
+        lo_edge, hi_edge = t0 + a * bin_m, t0 + (b + 1) * bin_m
+        in_a = ta[(ta >= lo_edge) & (ta < hi_edge)]
+        in_b = tb[(tb >= lo_edge) & (tb < hi_edge)]
+        out.append((max(in_a.min(), in_b.min()), min(in_a.max(), in_b.max())))
+    return out
+
+
+def refine_curve(
+    full: FullRes,
+    ra: int | tuple[int, ...],
+    rb: int | tuple[int, ...],
+    curve: FloatArray,
+    params: SeamParams,
+    viewpoint: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
+    """Cross-section refinement of a curved seam: in thin slabs across the seam, fit the trace of each
+    surface as a 2D line and intersect them. Returns dense points, normals a / b and RMS."""
+    from perception.evaluate import resample_polyline
+
+    samples = resample_polyline(curve, params.curve_step_m)
+    tang = np.gradient(samples, axis=0)
+    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-12)
+    R = params.refine_band_m
+    out_p, out_na, out_nb, rmss = [], [], [], []
+    for s, T in zip(samples, tang, strict=True):
+        idx = np.asarray(full.tree.query_ball_point(s, R), dtype=np.int64)
+        if idx.size < 20:
+            continue
+        q = full.points[idx]
+        rel = q - s
+        slab = np.abs(rel @ T) < params.slab_half_width_m
+        reg = full.regions[idx]
+        res = _corner_2d(rel[slab], reg[slab], ra, rb, T, params, viewpoint - s)
+        if res is None:
+            continue
+        corner, n_a, n_b, rms = res
+        out_p.append(s + corner)
+        out_na.append(n_a)
+        out_nb.append(n_b)
+        rmss.append(rms)
+    if len(out_p) < 4:
+        return None
+    pts = np.array(out_p)
+    # light smoothing along the seam (3-point moving average, ends kept)
+    sm = pts.copy()
+    sm[1:-1] = (pts[:-2] + pts[1:-1] + pts[2:]) / 3.0
+    # trim the ends
+    seg = np.linalg.norm(np.diff(sm, axis=0), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    keep = (cum >= params.end_trim_m) & (cum <= cum[-1] - params.end_trim_m)
+    if keep.sum() < 2 or cum[-1] < params.min_length_m:
+        return None
+    return sm[keep], np.array(out_na)[keep], np.array(out_nb)[keep], float(np.median(rmss))
+
+
+def _corner_2d(
+    rel: FloatArray,
+    reg: NDArray[np.int32],
+    ra: int | tuple[int, ...],
+    rb: int | tuple[int, ...],
+    T: FloatArray,
+    params: SeamParams,
+    to_view: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
+    """Intersect the 2D traces of two surfaces in a slab (coordinates relative to the slab centre)."""
+    if len(rel) < 12:
+        return None
+    # 2D basis of the cross-section plane
+    e1 = np.cross(T, [0.0, 0.0, 1.0])
+    if np.linalg.norm(e1) < 1e-6:
+        e1 = np.cross(T, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(T, e1)
+    xy = np.column_stack([rel @ e1, rel @ e2])
+    corner = np.zeros(2)
+    in_a, in_b = np.isin(reg, np.atleast_1d(ra)), np.isin(reg, np.atleast_1d(rb))
+    exclude = 0.5 * params.refine_band_m / 3
+    la = lb = None
+    for _ in range(3):
+        dist = np.linalg.norm(xy - corner, axis=1)
+        sa = in_a & (dist > exclude)
+        sb = in_b & (dist > exclude)
+        if sa.sum() < 6 or sb.sum() < 6:
+            return None
+        la = _fit_line_2d(xy[sa], params.plane_gate_sigma)
+        lb = _fit_line_2d(xy[sb], params.plane_gate_sigma)
+        (ca, da, ra_), (cb, db, rb_) = la, lb
+        cross = da[0] * db[1] - da[1] * db[0]
+        if abs(cross) < np.sin(np.radians(10)):
+            return None
+        # ca + s da = cb + u db
+        s = ((cb - ca)[0] * db[1] - (cb - ca)[1] * db[0]) / cross
+        corner = ca + s * da
+        # membership by distance to the two lines
+        na2 = np.array([-da[1], da[0]])
+        nb2 = np.array([-db[1], db[0]])
+        dA = np.abs((xy - ca) @ na2)
+        dB = np.abs((xy - cb) @ nb2)
+        gA = params.plane_gate_sigma * max(ra_, 2e-4)
+        gB = params.plane_gate_sigma * max(rb_, 2e-4)
+        in_a = (dA < gA) & (dA < dB)
+        in_b = (dB < gB) & (dB <= dA)
+        exclude = params.refine_exclude_m
+    assert la is not None and lb is not None
+    (ca, da, ra_), (cb, db, rb_) = la, lb
+    n_a3 = np.array([-da[1], da[0]]) @ np.vstack([e1, e2])
+    n_b3 = np.array([-db[1], db[0]]) @ np.vstack([e1, e2])
+    p3 = corner @ np.vstack([e1, e2])
+    n_a3 = orient_towards(n_a3, p3, to_view)
+    n_b3 = orient_towards(n_b3, p3, to_view)
+    return p3, n_a3, n_b3, max(ra_, rb_)
+
+
+def _fit_line_2d(p: FloatArray, gate: float) -> tuple[FloatArray, FloatArray, float]:
+    keep = np.ones(len(p), bool)
+    for _ in range(3):
+        c = p[keep].mean(axis=0)
+        _, s, vt = np.linalg.svd(p[keep] - c, full_matrices=False)
+        d = vt[0]
+        n = np.array([-d[1], d[0]])
+        rms = float(s[1] / np.sqrt(keep.sum()))
+        new = np.abs((p - c) @ n) <= max(gate * rms, 1e-5)
+        if new.sum() < 4 or np.array_equal(new, keep):
+            break
+        keep = new
+    return c, d, rms
+
+
+def refine_butt(
+    full: FullRes, ra: int, rb: int, line: FloatArray, n0: FloatArray, params: SeamParams, viewpoint: FloatArray
+) -> tuple[FloatArray, FloatArray, float] | None:
+    """Butt joint: the common plane from both plates, then the mid-line between the two plate edges
+    (each edge traced as the outermost points per 2 mm slice and fitted with a line)."""
+    p0, p1 = line[0], line[-1]
+    R = params.refine_band_m
+    pa = _points_near_polyline(full, ra, line, R)
+    pb = _points_near_polyline(full, rb, line, R)
+    if len(pa) < 20 or len(pb) < 20:
+        return None
+    c, n, rms, keep = fit_plane_robust(np.vstack([pa, pb]), sigma_gate=params.plane_gate_sigma)
+    n = orient_towards(n, c, viewpoint)
+    d = p1 - p0
+    d -= (d @ n) * n
+    d /= np.linalg.norm(d)
+    across = np.cross(n, d)
+    # across points from a to b
+    if (pb.mean(axis=0) - pa.mean(axis=0)) @ across < 0:
+        across = -across
+    ka, kb = keep[: len(pa)], keep[len(pa) :]
+    mid = 0.5 * (p0 + p1)
+    edges = []
+    for pts, sign in ((pa[ka], 1.0), (pb[kb], -1.0)):
+        t = (pts - mid) @ d
+        x = (pts - mid) @ across * sign  # towards the gap is positive for both plates
+        bins = np.floor(t / 0.002).astype(np.int64)
+        order = np.lexsort((-x, bins))
+        first = np.concatenate([[True], bins[order][1:] != bins[order][:-1]])
+        te, xe = t[order][first], x[order][first]
+        if len(te) < 5:
+            return None
+        A = np.column_stack([np.ones_like(te), te])
+        coef, *_ = np.linalg.lstsq(A, xe, rcond=None)
+        edges.append((coef, te.min(), te.max(), sign))
+    (ca_, lo_a, hi_a, _), (cb_, lo_b, hi_b, _) = edges
+    lo = max(lo_a, lo_b) + params.end_trim_m
+    hi = min(hi_a, hi_b) - params.end_trim_m
+    if hi - lo < params.min_length_m:
+        return None
+    gap_lo = (ca_[0] + ca_[1] * lo) + (cb_[0] + cb_[1] * lo)
+    gap_hi = (ca_[0] + ca_[1] * hi) + (cb_[0] + cb_[1] * hi)
+    if max(-gap_lo, -gap_hi) > params.max_gap_m:
+        return None
+
+    # mid-line: edge a at x_a (towards +across), edge b at -x_b: the middle is (x_a - x_b) / 2
+    def mid_at(tt: float) -> FloatArray:
+        xa = ca_[0] + ca_[1] * tt
+        xb = cb_[0] + cb_[1] * tt
+        base = mid + tt * d
+        base = base - ((base - c) @ n) * n
+        return base + 0.5 * (xa - xb) * across
+
+    return np.array([mid_at(lo), mid_at(hi)]), n, rms
