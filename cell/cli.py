@@ -19,6 +19,10 @@ from perception.errors import BadCapture, NoSeamFound, WeldcellError
 COMMAND_MODULES: tuple[str, ...] = (
     "cell.commands.simulate",
     "cell.commands.evaluate",
+    "cell.commands.detect",
+    "cell.commands.bench",
+    "cell.commands.sim",
+    "cell.commands.devices",
 )
 
 EXIT_OK = 0

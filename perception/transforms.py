@@ -146,5 +146,5 @@ def rotation_angle_rad(R_a: ArrayLike, R_b: ArrayLike) -> float:
     """Angle in radians of the rotation taking ``R_a`` to ``R_b``."""
     Ra = np.asarray(R_a, dtype=np.float64)[:3, :3]
     Rb = np.asarray(R_b, dtype=np.float64)[:3, :3]
-    c = (np.trace(Ra.T @ Rb) - 1.0) / 2.0
-    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+    # the rotation vector's norm stays accurate near zero, where arccos of the trace loses precision
+    return float(Rotation.from_matrix(Ra.T @ Rb).magnitude())

@@ -1,0 +1,189 @@
+"""``weldcell detect`` and ``weldcell demo``: find the seams of a capture (or a PLY/PCD cloud)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "ribs"
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "detect",
+        help="detect the weld seams of a capture folder (or a .ply/.pcd cloud: fine stage only)",
+        description="Coarse-to-fine multi-seam detection. Exit codes: 0 seams found, 2 bad capture, 3 no seam.",
+    )
+    p.add_argument("capture", help="capture folder, or a .ply/.pcd/.npy point cloud")
+    _add_detect_options(p)
+    p.set_defaults(func=run_detect)
+
+    d = sub.add_parser(
+        "demo",
+        help="detect the seams of the bundled sample capture and score them against its ground truth",
+    )
+    d.add_argument("--out", default="out", help="folder for seams.json and overlay.png (default: out)")
+    d.set_defaults(func=run_demo)
+
+
+def _add_detect_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", help="write seams.json here")
+    p.add_argument("--overlay", help="write the overlay PNG here")
+    p.add_argument("--ply", help="write the kept (cropped) points and the seam paths as a PLY here")
+    p.add_argument("--no-crop", action="store_true", help="skip the ROI crop (fine stage on the whole cloud)")
+    p.add_argument("--segmenter", choices=("default", "fastsam"), default="default")
+    p.add_argument("--model", help="FastSAM ONNX export (with --segmenter fastsam)")
+    p.add_argument("--voxel-mm", type=float, default=3.0, help="voxel size in mm (paper: 3)")
+    p.add_argument(
+        "--method", choices=("refined", "paper"), default="refined", help="'paper': no sub-voxel refinement"
+    )
+    p.add_argument("--step-mm", type=float, default=5.0, help="path point spacing in mm")
+    p.add_argument("--work-angle", type=float, default=0.0, help="work angle offset from the bisector, deg")
+    p.add_argument("--travel-angle", type=float, default=0.0, help="travel angle, deg (positive = push)")
+    p.add_argument("--json", action="store_true", help="print seams.json to stdout instead of a table")
+
+
+def build_params(args: argparse.Namespace) -> Any:
+    from perception.detect import DetectParams
+    from perception.errors import BadCapture
+    from perception.path import TorchParams
+
+    if not 0.2 <= args.voxel_mm <= 50:
+        raise BadCapture(f"--voxel-mm must be between 0.2 and 50, got {args.voxel_mm}")
+    if not 0.5 <= args.step_mm <= 100:
+        raise BadCapture(f"--step-mm must be between 0.5 and 100, got {args.step_mm}")
+    for name in ("work_angle", "travel_angle"):
+        if abs(getattr(args, name)) > 60:
+            raise BadCapture(f"--{name.replace('_', '-')} must be within +-60 degrees")
+    return DetectParams(
+        crop=not args.no_crop,
+        voxel_m=args.voxel_mm / 1000.0,
+        method=args.method,
+        torch=TorchParams(
+            step_m=args.step_mm / 1000.0, work_angle_deg=args.work_angle, travel_angle_deg=args.travel_angle
+        ),
+    )
+
+
+def make_segmenter(args: argparse.Namespace) -> Any:
+    from perception.errors import BadCapture
+
+    if args.segmenter == "fastsam":
+        if not args.model:
+            raise BadCapture("--segmenter fastsam needs --model FILE (a FastSAM ONNX export; see docs/fastsam.md)")
+        from perception.segment_fastsam import FastSamSegmenter
+
+        return FastSamSegmenter(args.model)
+    from perception.segment_default import GraphSegmenter
+
+    return GraphSegmenter()
+
+
+def run_detect(args: argparse.Namespace) -> int:
+    from perception.capture import load_capture, read_point_cloud
+    from perception.detect import detect, detect_cloud
+    from perception.seams import seams_to_json, write_seams_json
+
+    params = build_params(args)
+    src = Path(args.capture)
+    capture = None
+    if src.is_file() or src.suffix.lower() in (".ply", ".pcd", ".npy"):
+        cloud = read_point_cloud(src)
+        result = detect_cloud(cloud, replace(params, crop=False))
+    else:
+        capture = load_capture(src)
+        result = detect(capture, params, segmenter=make_segmenter(args))
+    if args.out:
+        write_seams_json(result, args.out)
+    if args.overlay and capture is not None:
+        from perception.overlay import draw_overlay, write_png
+
+        write_png(args.overlay, draw_overlay(capture, result))
+    if args.ply:
+        _write_ply(args.ply, result, capture)
+    if args.json:
+        print(json.dumps(seams_to_json(result), indent=1))
+    else:
+        print_table(result, title=str(src))
+        if args.out:
+            print(f"seams.json -> {args.out}")
+        if args.overlay and capture is not None:
+            print(f"overlay    -> {args.overlay}")
+    return 0
+
+
+def print_table(result: Any, *, title: str) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{title}: {len(result.seams)} seam(s), frame={result.frame}")
+    for col in ("id", "kind", "length mm", "points", "start x,y,z mm", "end x,y,z mm", "conf"):
+        table.add_column(col, justify="right", no_wrap=True)
+    for s in result.seams:
+        a, b = s.points[0] * 1000, s.points[-1] * 1000
+        table.add_row(
+            str(s.id),
+            s.kind,
+            f"{s.length_m * 1000:.1f}",
+            str(len(s.points)),
+            f"{a[0]:.1f},{a[1]:.1f},{a[2]:.1f}",
+            f"{b[0]:.1f},{b[1]:.1f},{b[2]:.1f}",
+            f"{s.confidence:.2f}",
+        )
+    console = Console()
+    console.print(table)
+    pc = result.point_counts
+    t = result.timing_s
+    removed = 1.0 - pc.get("cropped", 0) / max(pc.get("raw", 1), 1)
+    console.print(
+        f"points: raw {pc.get('raw', 0)}, kept {pc.get('cropped', 0)} ({removed * 100:.1f}% removed), "
+        f"downsampled {pc.get('downsampled', 0)}; time: coarse {t.get('coarse', 0):.3f} s, "
+        f"fine {t.get('fine', 0):.3f} s, total {t.get('total', 0):.3f} s"
+    )
+
+
+def _write_ply(path: str, result: Any, capture: Any) -> None:
+    import numpy as np
+    import open3d as o3d
+
+    pts = [s.points for s in result.seams]
+    cols = [np.tile([1.0, 0.1, 0.1], (len(p), 1)) for p in pts]
+    kept = result.artifacts.get("kept_points")
+    if kept is not None:
+        pts.insert(0, kept)
+        cols.insert(0, np.tile([0.6, 0.6, 0.6], (len(kept), 1)))
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.vstack(pts)))
+    pcd.colors = o3d.utility.Vector3dVector(np.vstack(cols))
+    if not o3d.io.write_point_cloud(Path(path), pcd):
+        raise OSError(f"could not write {path}")
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    from perception.capture import load_capture
+    from perception.detect import DetectParams, detect
+    from perception.evaluate import evaluate_seams
+    from perception.overlay import draw_overlay, write_png
+    from perception.seams import write_seams_json
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    capture = load_capture(SAMPLE)
+    result = detect(capture, DetectParams())
+    write_seams_json(result, out / "seams.json")
+    write_png(str(out / "overlay.png"), draw_overlay(capture, result))
+    print_table(result, title=f"bundled sample {SAMPLE.name}")
+    if capture.ground_truth:
+        from perception.transforms import invert_X, transform_points
+
+        X = capture.X_base_camera
+        pts = [s.points if X is None else transform_points(invert_X(X), s.points) for s in result.seams]
+        rep = evaluate_seams(pts, capture.ground_truth)
+        print(
+            f"against ground truth: {rep.n_found}/{rep.n_truth} seams found, {len(rep.false_seams)} false, "
+            f"coverage {rep.coverage * 100:.1f}%, RMSE {rep.rmse_m * 1000:.3f} mm, max {rep.max_m * 1000:.3f} mm"
+        )
+    print(f"wrote {out / 'seams.json'} and {out / 'overlay.png'}")
+    return 0
