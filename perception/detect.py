@@ -159,9 +159,11 @@ def _regions_to_seams(
         edges = region_edges(regions, nbh, min_points=sp.min_edge_points, link_m=2.5 * params.voxel_m)
         n_reg = int(regions.max(initial=-1)) + 1
         ok_r = regions >= 0
-        region_normals = np.column_stack(
-            [np.bincount(regions[ok_r], weights=normals[ok_r, k], minlength=n_reg) for k in range(3)]
-        ).astype(np.float64).reshape(n_reg, 3)
+        region_normals = (
+            np.column_stack([np.bincount(regions[ok_r], weights=normals[ok_r, k], minlength=n_reg) for k in range(3)])
+            .astype(np.float64)
+            .reshape(n_reg, 3)
+        )
         region_normals /= np.maximum(np.linalg.norm(region_normals, axis=1, keepdims=True), 1e-12)
         full = FullRes(pts, regions[grid.point_voxel], cKDTree(pts), region_normals, normals[grid.point_voxel])
         cands = []
@@ -190,8 +192,49 @@ def _regions_to_seams(
     with log.step("refine"):
         for c in fitted:
             labs = (_majority(grid.labels, regions, c.regions_a), _majority(grid.labels, regions, c.regions_b))
+            if labels is not None and min(labs) < 0:
+                # one side is mostly background (table, fixture): a workpiece edge standing on the
+                # table is a concave junction, but not a seam of the workpiece
+                continue
             out.extend(_finish(full, c, labs, params, viewpoint))
+        out = _dedupe(out)
     return out
+
+
+def _dedupe(geoms: list[SeamGeometry], *, max_dist_m: float = 0.001) -> list[SeamGeometry]:
+    """Drop a seam that lies on another one (two candidates tracked onto the same junction); of two
+    overlapping copies the longer is kept, extended to cover both."""
+    kept: list[SeamGeometry] = []
+    for g in sorted(geoms, key=lambda g: -float(np.linalg.norm(np.diff(g.points, axis=0), axis=1).sum())):
+        dup = False
+        for i, k in enumerate(kept):
+            if g.kind != k.kind or g.joint != k.joint:
+                continue
+            from perception.evaluate import point_to_polyline_distance
+
+            if point_to_polyline_distance(g.points, _extended(k.points, 0.02)).max() > max_dist_m:
+                continue
+            dup = True
+            if k.kind == "linear":
+                d = k.points[-1] - k.points[0]
+                d /= np.linalg.norm(d)
+                t = np.concatenate([(k.points - k.points[0]) @ d, (g.points - k.points[0]) @ d])
+                own = (k.points - k.points[0]) @ d
+                if t.min() < own.min() - 1e-9 or t.max() > own.max() + 1e-9:
+                    # the copies overlap only partly: cover both
+                    ends = np.array([k.points[0] + t.min() * d, k.points[0] + t.max() * d])
+                    kept[i] = replace(k, points=ends)
+            break
+        if not dup:
+            kept.append(g)
+    return kept
+
+
+def _extended(line: FloatArray, by: float) -> FloatArray:
+    if len(line) != 2:
+        return line
+    d = (line[1] - line[0]) / np.linalg.norm(line[1] - line[0])
+    return np.array([line[0] - by * d, line[1] + by * d])
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,93 @@
+"""Fine-stage steps on synthetic clouds with exact answers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from perception.cloud import (
+    grow_regions,
+    merge_coplanar_regions,
+    neighbourhoods,
+    normals_and_curvature,
+    pass_through,
+    voxel_downsample,
+)
+
+
+def grid_plane(n: int, spacing: float, origin, u, v) -> np.ndarray:
+    a, b = np.meshgrid(np.arange(n) * spacing, np.arange(n) * spacing)
+    return np.asarray(origin) + a.reshape(-1, 1) * np.asarray(u) + b.reshape(-1, 1) * np.asarray(v)
+
+
+def test_voxel_centroids_are_exact() -> None:
+    # two points in voxel (0,0,0), one in (1,0,0), with labels voting
+    pts = np.array([[0.0005, 0.0005, 0.0005], [0.0015, 0.0025, 0.0005], [0.0035, 0.0001, 0.0002]])
+    grid = voxel_downsample(pts, voxel_m=0.003, labels=np.array([2, 2, 5], np.int32))
+    order = np.argsort(grid.centroids[:, 0])
+    assert np.allclose(grid.centroids[order], [[0.001, 0.0015, 0.0005], [0.0035, 0.0001, 0.0002]])
+    assert grid.counts[order].tolist() == [2, 1]
+    assert grid.labels[order].tolist() == [2, 5]
+    # every point maps to the voxel holding it
+    assert np.allclose(grid.centroids[grid.point_voxel][:2], [0.001, 0.0015, 0.0005])
+
+
+def test_voxel_size_must_be_positive() -> None:
+    with pytest.raises(ValueError, match="positive"):
+        voxel_downsample(np.zeros((3, 3)), voxel_m=0.0)
+
+
+def test_pass_through_range_and_box() -> None:
+    pts = np.array([[0, 0, 0.05], [0, 0, 0.5], [0.2, 0, 0.5], [np.nan, 0, 0.5], [0, 0, 4.0]])
+    keep = pass_through(pts, z_range_m=(0.1, 3.0), box_min=np.array([-0.1, -1, 0]), box_max=np.array([0.1, 1, 1]))
+    assert keep.tolist() == [False, True, False, False, False]
+
+
+def test_plane_normals_face_the_viewpoint_and_curvature_is_zero() -> None:
+    pts = grid_plane(20, 0.003, [0, 0, 0.5], [1, 0, 0], [0, 1, 0])
+    nbh = neighbourhoods(pts, k=12, radius_m=0.0075)
+    n, c = normals_and_curvature(pts, nbh)
+    assert np.allclose(n, [0, 0, -1], atol=1e-9)  # towards the camera at the origin
+    assert c.max() < 1e-12
+
+
+def test_curvature_grows_as_the_radius_shrinks() -> None:
+    """Surface variation of a cylinder patch scales with (neighbourhood / radius)^2: half the radius,
+    about four times the curvature."""
+
+    def median_curvature(r: float) -> float:
+        ang = np.arange(0, np.pi * r, 0.001) / r
+        z = np.arange(0, 0.03, 0.001)
+        A, Z = np.meshgrid(ang, z)
+        pts = np.column_stack([r * np.cos(A).ravel(), Z.ravel(), 0.5 + r * np.sin(A).ravel()])
+        nbh = neighbourhoods(pts, k=40, radius_m=0.004)
+        _, c = normals_and_curvature(pts, nbh)
+        return float(np.median(c))
+
+    c20, c40 = median_curvature(0.02), median_curvature(0.04)
+    assert c20 > 0 and c40 > 0
+    assert c20 / c40 == pytest.approx(4.0, rel=0.15)
+
+
+def test_region_growing_splits_a_fold_and_seeds_from_the_flattest() -> None:
+    floor = grid_plane(20, 0.003, [0, 0, 0.5], [1, 0, 0], [0, 1, 0])
+    wall = grid_plane(20, 0.003, [0, 0, 0.5], [0, 1, 0], [0, 0, -1])[20:]  # shares the x=0 line
+    pts = np.vstack([floor, wall])
+    nbh = neighbourhoods(pts, k=12, radius_m=0.0075)
+    n, c = normals_and_curvature(pts, nbh, viewpoint=np.array([0.1, 0.03, 0.3]))
+    reg = grow_regions(n, c, nbh)
+    assert reg.max() == 1  # exactly two regions
+    flat_floor = reg[: len(floor)][np.abs(floor[:, 0]) > 0.01]
+    flat_wall = reg[len(floor) :][np.abs(wall[:, 2] - 0.5) > 0.01]
+    assert len(set(flat_floor)) == 1 and len(set(flat_wall)) == 1
+    assert flat_floor[0] != flat_wall[0]
+    # region 0 is seeded first: both are flat, ties go to the lower index, the floor
+    assert flat_floor[0] == 0
+
+
+def test_coplanar_fragments_are_merged() -> None:
+    pts = grid_plane(20, 0.003, [0, 0, 0.5], [1, 0, 0], [0, 1, 0])
+    nbh = neighbourhoods(pts, k=12, radius_m=0.0075)
+    regions = np.where(pts[:, 0] < 0.03, 0, 1).astype(np.int32)
+    merged = merge_coplanar_regions(pts, regions, nbh)
+    assert set(merged.tolist()) == {0}
