@@ -1,0 +1,708 @@
+"""Universal Robots arm (UR5 / CB3 and e-Series) through ur-rtde, implementing :class:`drivers.protocols.Robot`.
+
+ur-rtde (modules ``rtde_receive``, ``rtde_control``, ``rtde_io``) is imported lazily; without it :meth:`connect`
+raises :class:`drivers.errors.DriverNotInstalled` with the install hint.
+
+Why a worker process: ur-rtde's C++ calls hold the GIL while they wait, and several of them wait without a bound
+(the RTDE handshake, "wait for the first state", the control script re-upload before a path, a command whose
+"done" never comes from a hung controller). A thread cannot time such a call out, so every ur-rtde object lives in
+a child process and this driver talks to it over a pipe with a deadline on each request: when a deadline passes
+the child is killed and :class:`drivers.errors.DeviceTimeout` is raised; :meth:`URRobot.connect` starts a fresh one.
+
+Motions are sent asynchronously (``moveL(..., asynchronous=True)``) and followed by polling the RTDE state every
+controller cycle, so a protective stop (safety status bit 2), an emergency stop (bits 5-7), a lost connection or a
+stalled data stream end the wait with the matching error instead of a hang. Frames and units: ``X_base_tool`` is
+the 4x4 tool pose in the robot base frame in metres; speeds m/s, accelerations m/s², times s. Poses cross to
+ur-rtde as UR pose vectors ``[x, y, z, rx, ry, rz]`` (m, rotation vector in rad) in :func:`_ur_pose` only.
+
+The worker is started with multiprocessing's "spawn" method, so a script that connects at import time needs the
+usual ``if __name__ == "__main__":`` guard.
+
+ur-rtde 1.6 always connects its RTDE interfaces to port 30004 and uploads its control script to port 30003; only
+the dashboard port (used by :meth:`URRobot.unlock_protective_stop`) can differ from the standard.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import multiprocessing
+import os
+import signal
+import socket
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from drivers.errors import (
+    ConnectionLost,
+    DeviceFault,
+    DeviceTimeout,
+    DriverError,
+    DriverNotInstalled,
+    EmergencyStop,
+    MotionRejected,
+    MotionTimeout,
+    ProtectiveStop,
+)
+from drivers.protocols import FloatArray, RobotMode, RobotState
+from perception.transforms import TransformError, X_from_ur_pose, check_X, rotation_angle_rad, ur_pose_from_X
+
+log = logging.getLogger(__name__)
+
+INSTALL_HINT = "ur-rtde is not installed: pip install 'ur-rtde>=1.5.8,<2' (it provides rtde_control, rtde_receive)"
+
+RTDE_PORT = 30004
+DASHBOARD_PORT = 29999
+
+# limits ur-rtde checks before sending (rtde_control_interface.h)
+TOOL_SPEED_MAX_M_S = 3.0
+TOOL_ACCEL_MAX_M_S2 = 150.0
+BLEND_MAX_M = 2.0
+
+# RTDE safety_status_bits, robot_mode and runtime_state values
+_BIT_PROTECTIVE_STOPPED = 2
+_BIT_SAFEGUARD_STOPPED = 4
+_BIT_SYSTEM_EMERGENCY_STOPPED = 5
+_BIT_ROBOT_EMERGENCY_STOPPED = 6
+_BIT_EMERGENCY_STOPPED = 7
+_BIT_VIOLATION = 8
+_BIT_FAULT = 9
+_ESTOP_MASK = (1 << _BIT_EMERGENCY_STOPPED) | (1 << _BIT_ROBOT_EMERGENCY_STOPPED) | (1 << _BIT_SYSTEM_EMERGENCY_STOPPED)
+_ROBOT_MODE_RUNNING = 7
+_ROBOT_MODE_NAMES = {
+    -1: "NO_CONTROLLER",
+    0: "DISCONNECTED",
+    1: "CONFIRM_SAFETY",
+    2: "BOOTING",
+    3: "POWER_OFF",
+    4: "POWER_ON",
+    5: "IDLE",
+    6: "BACKDRIVE",
+    7: "RUNNING",
+    8: "UPDATING_FIRMWARE",
+}
+_RUNTIME_PLAYING = 2
+
+# what the receive interface streams for this driver (a small recipe keeps the controller's load low)
+RECEIVE_VARIABLES = (
+    "timestamp",
+    "actual_TCP_pose",
+    "actual_TCP_speed",
+    "robot_mode",
+    "safety_mode",
+    "safety_status_bits",
+    "runtime_state",
+    "actual_digital_output_bits",
+)
+
+_MOVING_SPEED_M_S = 1e-4
+_MOVING_SPEED_RAD_S = 1e-3
+
+
+class URRTDEError(Exception):
+    """An exception ur-rtde raised in the worker process; the message keeps its type name and text."""
+
+
+def _import_ur_rtde() -> tuple[ModuleType, ModuleType, ModuleType, ModuleType]:
+    try:
+        import dashboard_client
+        import rtde_control
+        import rtde_io
+        import rtde_receive
+    except ImportError as err:
+        raise DriverNotInstalled(f"{INSTALL_HINT} ({err})") from err
+    return rtde_receive, rtde_control, rtde_io, dashboard_client
+
+
+def _ur_pose(X_base_tool: FloatArray) -> list[float]:
+    """UR pose vector of a 4x4 pose: the one place where poses change representation for ur-rtde."""
+    return [float(v) for v in ur_pose_from_X(X_base_tool)]
+
+
+# --------------------------------------------------------------------------------------------- worker process
+
+
+class _Worker:
+    """Owns the ur-rtde interfaces inside the worker process; each ``op_*`` answers one request."""
+
+    def __init__(self, host: str, dashboard_port: int) -> None:
+        self.host = host
+        self.dashboard_port = dashboard_port
+        self.receive: Any = None
+        self.control: Any = None
+        self.io: Any = None
+
+    def op_connect(self) -> dict[str, Any]:
+        rtde_receive, rtde_control, rtde_io, _ = _import_ur_rtde()
+        self.receive = rtde_receive.RTDEReceiveInterface(self.host, -1.0, list(RECEIVE_VARIABLES))
+        self.control = rtde_control.RTDEControlInterface(self.host)
+        self.io = rtde_io.RTDEIOInterface(self.host)
+        return self.op_state()
+
+    def op_state(self) -> dict[str, Any]:
+        r, c = self.receive, self.control
+        if not r.isConnected():
+            raise ConnectionLost("the RTDE receive connection closed")
+        status = c.getAsyncOperationProgressEx()
+        return {
+            "timestamp": r.getTimestamp(),
+            "pose": list(r.getActualTCPPose()),
+            "speed": list(r.getActualTCPSpeed()),
+            "robot_mode": r.getRobotMode(),
+            "safety_mode": r.getSafetyMode(),
+            "safety_status_bits": r.getSafetyStatusBits(),
+            "runtime_state": r.getRuntimeState(),
+            "digital_output_bits": r.getActualDigitalOutputBits(),
+            "control_connected": c.isConnected(),
+            "control_ready": c.isProgramRunning(),
+            "async_running": status.isAsyncOperationRunning(),
+            "async_progress": status.progress(),
+        }
+
+    def op_move_linear(self, pose: list[float], speed: float, accel: float) -> bool:
+        return bool(self.control.moveL(pose, speed, accel, True))
+
+    def op_move_path(self, path: list[list[float]]) -> bool:
+        return bool(self.control.moveL(path, True))
+
+    def op_stop(self, decel: float) -> None:
+        self.control.stopL(decel, False)
+
+    def op_reupload(self) -> bool:
+        return bool(self.control.reuploadScript())
+
+    def op_set_digital_output(self, index: int, value: bool) -> bool:
+        return bool(self.io.setStandardDigitalOut(index, value))
+
+    def op_dashboard(self, commands: list[str]) -> list[str]:
+        _, _, _, dashboard_client = _import_ur_rtde()
+        client = dashboard_client.DashboardClient(self.host, self.dashboard_port)
+        client.connect()
+        replies = []
+        for command in commands:
+            client.send(command + "\n")
+            replies.append(client.receive())
+        client.disconnect()
+        return replies
+
+    def op_close(self) -> None:
+        control = self.control
+        if control is not None and control.isConnected() and control.isProgramRunning():
+            control.stopScript()
+
+
+def _worker_main(conn: Connection, host: str, dashboard_port: int) -> None:
+    """Entry point of the worker process: answer requests until told to close or the driver goes away."""
+    # Ctrl-C reaches the whole process group; the driver handles it (and stops the arm through this worker)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    worker = _Worker(host, dashboard_port)
+    while True:
+        try:
+            op, args = conn.recv()
+        except (EOFError, OSError):
+            os._exit(0)
+        try:
+            result = getattr(worker, f"op_{op}")(*args)
+            conn.send(("ok", result))
+        except Exception as err:
+            conn.send(("error", type(err).__name__, str(err)))
+        if op == "close":
+            conn.close()
+            # ur-rtde's disconnect() sleeps 0.5 s per interface; ending the process closes the sockets just as well
+            os._exit(0)
+
+
+# --------------------------------------------------------------------------------------------- the driver
+
+
+@dataclass(frozen=True)
+class _Status:
+    """One RTDE state sample as the driver uses it."""
+
+    X_base_tool: FloatArray
+    tcp_speed: tuple[float, ...]
+    robot_mode: int
+    safety_mode: int
+    safety_status_bits: int
+    runtime_state: int
+    digital_output_bits: int
+    async_running: bool
+    async_progress: int
+    control_ready: bool  # the control interface's own view of the script: running
+
+    @property
+    def emergency_stop(self) -> bool:
+        bits = self.safety_status_bits
+        mask = (
+            (1 << _BIT_EMERGENCY_STOPPED) | (1 << _BIT_ROBOT_EMERGENCY_STOPPED) | (1 << _BIT_SYSTEM_EMERGENCY_STOPPED)
+        )
+        return bool(bits & mask)
+
+    @property
+    def protective_stop(self) -> bool:
+        return bool(self.safety_status_bits & ((1 << _BIT_PROTECTIVE_STOPPED) | (1 << _BIT_SAFEGUARD_STOPPED)))
+
+    @property
+    def moving(self) -> bool:
+        v = self.tcp_speed
+        return math.hypot(v[0], v[1], v[2]) > _MOVING_SPEED_M_S or math.hypot(v[3], v[4], v[5]) > _MOVING_SPEED_RAD_S
+
+    @property
+    def program_running(self) -> bool:
+        return self.runtime_state == _RUNTIME_PLAYING
+
+
+class URRobot:
+    """A UR arm driven through ur-rtde (see the module docstring for the worker process).
+
+    ``host``: the controller's address. ``rtde_port``: must be 30004 (ur-rtde 1.6 has no other); it is checked
+    before the worker starts so that a wrong address fails fast. ``dashboard_port``: the dashboard server.
+    ``connect_timeout_s``: bound on :meth:`connect` (ur-rtde waits up to 5 s for its control script to start).
+    ``command_timeout_s``: bound on every other request to the controller. ``stale_after_s``: the RTDE stream
+    counts as lost (:class:`ConnectionLost`, as the Robot protocol asks of ``state()``) when its timestamp has not
+    moved for this long.
+    ``stop_decel_m_s2``: tool deceleration of :meth:`stop`. ``arrive_tol_m`` / ``arrive_tol_rad``: how close a
+    finished motion must end to its target before it counts as arrived.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        *,
+        name: str = "ur",
+        rtde_port: int = RTDE_PORT,
+        dashboard_port: int = DASHBOARD_PORT,
+        connect_timeout_s: float = 15.0,
+        command_timeout_s: float = 5.0,
+        stale_after_s: float = 1.0,
+        stop_decel_m_s2: float = 2.0,
+        arrive_tol_m: float = 5e-4,
+        arrive_tol_rad: float = math.radians(0.5),
+        poll_s: float = 0.008,
+    ) -> None:
+        if not host:
+            raise ValueError("URRobot needs the controller's host address, got an empty string")
+        if rtde_port != RTDE_PORT:
+            raise ValueError(f"ur-rtde 1.6 connects RTDE to port {RTDE_PORT} only; got rtde_port={rtde_port}")
+        self.name = name
+        self.host = host
+        self.rtde_port = rtde_port
+        self.dashboard_port = dashboard_port
+        self.connect_timeout_s = connect_timeout_s
+        self.command_timeout_s = command_timeout_s
+        self.stale_after_s = stale_after_s
+        self.stop_decel_m_s2 = stop_decel_m_s2
+        self.arrive_tol_m = arrive_tol_m
+        self.arrive_tol_rad = arrive_tol_rad
+        self.poll_s = poll_s
+        self._proc: multiprocessing.process.BaseProcess | None = None
+        self._conn: Connection | None = None
+        self._lock = threading.RLock()
+        self._last_timestamp = math.nan
+        self._last_change = 0.0
+
+    def __repr__(self) -> str:
+        return f"URRobot(name={self.name!r}, host={self.host!r}, connected={self._proc is not None})"
+
+    # ------------------------------------------------------------------ connection
+    def connect(self) -> None:
+        """Connect (again): a fresh worker with fresh ur-rtde interfaces; ConnectionLost when unreachable."""
+        _import_ur_rtde()
+        with self._lock:
+            self.disconnect()
+            self._preflight()
+            ctx = multiprocessing.get_context("spawn")
+            parent, child = ctx.Pipe()
+            proc = ctx.Process(
+                target=_worker_main,
+                args=(child, self.host, self.dashboard_port),
+                name=f"ur-rtde-{self.name}-{self.host}",
+                daemon=True,
+            )
+            proc.start()
+            child.close()
+            self._proc, self._conn = proc, parent
+            log.debug("%s: connecting to %s (RTDE receive, control and IO interfaces)", self.name, self.host)
+            try:
+                raw = self._request("connect", timeout_s=self.connect_timeout_s)
+            except DeviceTimeout:
+                raise
+            except DriverError as err:
+                self._kill_worker()
+                raise ConnectionLost(
+                    f"{self.name}: could not connect to the UR controller at {self.host}: {err}; "
+                    "check that it is powered, in remote control and reachable"
+                ) from err
+            self._last_timestamp = math.nan
+            self._status_from(raw)
+            log.info("%s: connected to UR controller at %s", self.name, self.host)
+
+    def _preflight(self) -> None:
+        try:
+            with socket.create_connection((self.host, self.rtde_port), timeout=min(self.connect_timeout_s, 3.0)):
+                pass
+        except OSError as err:
+            raise ConnectionLost(
+                f"{self.name}: no RTDE server at {self.host}:{self.rtde_port} ({err}); "
+                "check the controller's address and that it is switched on"
+            ) from err
+
+    def disconnect(self) -> None:
+        """Stop the control script and close the connections; safe to call twice."""
+        with self._lock:
+            if self._proc is None:
+                return
+            try:
+                self._request("close", timeout_s=3.0)
+            except DriverError as err:
+                log.debug("%s: closing the worker: %s", self.name, err)
+            self._kill_worker(grace_s=1.0)
+            log.info("%s: disconnected from %s", self.name, self.host)
+
+    def _kill_worker(self, *, grace_s: float = 0.0) -> None:
+        """End the worker: wait ``grace_s`` for it to exit by itself, then kill it."""
+        proc, conn = self._proc, self._conn
+        self._proc = self._conn = None
+        if conn is not None:
+            conn.close()
+        if proc is not None:
+            proc.join(grace_s)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(2.0)
+
+    def _request(self, op: str, *args: Any, timeout_s: float) -> Any:
+        """Run ``op`` in the worker; kill it and raise DeviceTimeout when it takes longer than ``timeout_s``."""
+        with self._lock:
+            conn = self._conn
+            if conn is None:
+                raise ConnectionLost(f"{self.name}: not connected to {self.host}; call connect() first")
+            try:
+                conn.send((op, args))
+                answered = conn.poll(max(timeout_s, 0.0))
+                reply = conn.recv() if answered else None
+            except (EOFError, OSError) as err:
+                self._kill_worker()
+                raise ConnectionLost(
+                    f"{self.name}: the ur-rtde worker for {self.host} ended during {op!r}; call connect() again"
+                ) from err
+            if reply is None:
+                self._kill_worker()
+                raise DeviceTimeout(
+                    f"{self.name}: the UR controller at {self.host} did not complete {op!r} within {timeout_s:.1f} s; "
+                    "the connection was closed, check the controller and call connect() again"
+                )
+        if reply[0] == "ok":
+            return reply[1]
+        kind, message = reply[1], reply[2]
+        cause = URRTDEError(f"{kind}: {message}")
+        if kind == "ConnectionLost" or "connect" in message.lower() or "socket" in message.lower():
+            raise ConnectionLost(f"{self.name}: connection to {self.host} lost during {op!r}: {message}") from cause
+        raise DeviceFault(f"{self.name}: ur-rtde failed in {op!r} at {self.host}: {kind}: {message}") from cause
+
+    # ------------------------------------------------------------------ state
+    def _status(self) -> _Status:
+        return self._status_from(self._request("state", timeout_s=self.command_timeout_s))
+
+    def _status_from(self, raw: dict[str, Any]) -> _Status:
+        now = time.monotonic()
+        if raw["timestamp"] != self._last_timestamp:
+            self._last_timestamp = raw["timestamp"]
+            self._last_change = now
+        elif now - self._last_change > self.stale_after_s:
+            raise ConnectionLost(
+                f"{self.name}: the RTDE data from {self.host} stopped {now - self._last_change:.2f} s ago "
+                f"(controller timestamp {raw['timestamp']:.3f} s); the controller does not answer, "
+                "check it and call connect() again"
+            )
+        if not raw["control_connected"]:
+            raise ConnectionLost(f"{self.name}: the RTDE control connection to {self.host} closed; call connect()")
+        return _Status(
+            X_base_tool=X_from_ur_pose(raw["pose"]),
+            tcp_speed=tuple(raw["speed"]),
+            robot_mode=int(raw["robot_mode"]),
+            safety_mode=int(raw["safety_mode"]),
+            safety_status_bits=int(raw["safety_status_bits"]),
+            runtime_state=int(raw["runtime_state"]),
+            digital_output_bits=int(raw["digital_output_bits"]),
+            async_running=bool(raw["async_running"]),
+            async_progress=int(raw["async_progress"]),
+            control_ready=bool(raw["control_ready"]),
+        )
+
+    def state(self) -> RobotState:
+        st = self._status()
+        bits = st.safety_status_bits
+        if st.emergency_stop:
+            mode, message = RobotMode.EMERGENCY_STOP, f"emergency stop (safety mode {st.safety_mode})"
+        elif st.protective_stop:
+            mode, message = RobotMode.PROTECTIVE_STOP, f"protective stop (safety mode {st.safety_mode})"
+        elif bits & ((1 << _BIT_FAULT) | (1 << _BIT_VIOLATION)):
+            mode, message = RobotMode.FAULT, f"safety fault or violation (safety status bits {bits:#x})"
+        elif st.robot_mode != _ROBOT_MODE_RUNNING:
+            robot_mode = _ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))
+            mode, message = RobotMode.FAULT, f"robot mode {robot_mode}: power the arm on and release its brakes"
+        else:
+            mode, message = (RobotMode.MOVING if st.moving else RobotMode.IDLE), ""
+        return RobotState(
+            mode=mode,
+            X_base_tool=st.X_base_tool,
+            is_moving=st.moving,
+            protective_stop=st.protective_stop,
+            emergency_stop=st.emergency_stop,
+            digital_outputs=tuple(bool(st.digital_output_bits >> i & 1) for i in range(8)),
+            message=message,
+        )
+
+    def get_X_base_tool(self) -> FloatArray:
+        return self._status().X_base_tool
+
+    # ------------------------------------------------------------------ motion
+    def move_linear(
+        self, X_base_tool: FloatArray, *, speed_m_s: float, accel_m_s2: float = 0.5, timeout_s: float = 60.0
+    ) -> None:
+        X_target = self._checked_pose(X_base_tool, "X_base_tool")
+        self._check_motion(speed_m_s, accel_m_s2, timeout_s)
+        deadline = time.monotonic() + timeout_s
+        self._ready_for_motion(deadline)
+        pose = _ur_pose(X_target)
+        log.debug(
+            "%s: moveL to [%.4f, %.4f, %.4f] m, rotvec [%.4f, %.4f, %.4f] rad at %.3f m/s, %.3f m/s^2",
+            self.name,
+            *pose,
+            speed_m_s,
+            accel_m_s2,
+        )
+        accepted = self._request("move_linear", pose, speed_m_s, accel_m_s2, timeout_s=self._budget(deadline))
+        if not accepted:
+            self._raise_refused("moveL", X_target)
+        self._follow_motion("moveL", X_target, deadline, n_waypoints=1, on_progress=None)
+
+    def stream_path(
+        self,
+        X_base_tool_path: Sequence[FloatArray],
+        *,
+        speed_m_s: float,
+        blend_m: float = 0.0,
+        accel_m_s2: float = 0.5,
+        timeout_s: float = 300.0,
+        on_progress: Callable[[int], None] | None = None,
+    ) -> None:
+        """Send the whole path as one blended ``moveL(path)``; ``on_progress(i)`` as waypoint ``i`` is passed.
+
+        ur-rtde writes the path into its control script with 6 significant digits, so waypoints are rounded to
+        about 5 µm and 5 µrad on the controller.
+        """
+        targets = [self._checked_pose(X, f"X_base_tool_path[{i}]") for i, X in enumerate(X_base_tool_path)]
+        if not targets:
+            log.debug("%s: empty path, nothing to move", self.name)
+            return
+        self._check_motion(speed_m_s, accel_m_s2, timeout_s)
+        if not 0.0 <= blend_m <= BLEND_MAX_M:
+            raise MotionRejected(f"{self.name}: blend_m={blend_m} m is outside [0, {BLEND_MAX_M}] m")
+        deadline = time.monotonic() + timeout_s
+        self._ready_for_motion(deadline)
+        path = [[*_ur_pose(X), speed_m_s, accel_m_s2, blend_m] for X in targets]
+        path[-1][8] = 0.0  # the path must end with a stop on its last pose
+        log.debug(
+            "%s: moveL path of %d poses from [%.4f, %.4f, %.4f] m to [%.4f, %.4f, %.4f] m "
+            "at %.3f m/s, %.3f m/s^2, blend %.4f m",
+            self.name,
+            len(path),
+            *path[0][:3],
+            *path[-1][:3],
+            speed_m_s,
+            accel_m_s2,
+            blend_m,
+        )
+        accepted = self._request("move_path", path, timeout_s=self._budget(deadline))
+        if not accepted:
+            self._raise_refused("moveL path", targets[-1])
+        self._follow_motion("moveL path", targets[-1], deadline, n_waypoints=len(path), on_progress=on_progress)
+
+    def stop(self) -> None:
+        """Decelerate at ``stop_decel_m_s2`` now; a no-op when not connected or when no program can move the arm."""
+        with self._lock:
+            if self._conn is None:
+                log.debug("%s: stop while not connected: nothing to stop through this driver", self.name)
+                return
+            st = self._status()
+            if not st.program_running or st.emergency_stop or st.protective_stop:
+                log.debug("%s: stop: no control script running, the arm is not being moved", self.name)
+                return
+            log.debug("%s: stopL at %.2f m/s^2", self.name, self.stop_decel_m_s2)
+            self._request("stop", self.stop_decel_m_s2, timeout_s=self.command_timeout_s)
+
+    def set_digital_output(self, index: int, value: bool, *, timeout_s: float = 1.0) -> None:
+        """Set standard digital output ``index`` (0-7) and wait until the controller reports it set."""
+        if not 0 <= index <= 7:
+            raise ValueError(f"{self.name}: standard digital outputs are 0-7, got {index}")
+        log.debug("%s: set standard digital output %d to %s", self.name, index, value)
+        if not self._request("set_digital_output", index, bool(value), timeout_s=self.command_timeout_s):
+            raise ConnectionLost(f"{self.name}: ur-rtde could not send digital output {index} to {self.host}")
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if bool(self._status().digital_output_bits >> index & 1) == bool(value):
+                return
+            if time.monotonic() > deadline:
+                raise DeviceTimeout(
+                    f"{self.name}: digital output {index} did not read back {value} within {timeout_s} s"
+                )
+            time.sleep(self.poll_s)
+
+    def unlock_protective_stop(self, *, timeout_s: float = 10.0) -> None:
+        """Release a protective stop through the dashboard and restart the control script.
+
+        A CB3 refuses the unlock until 5 s after the stop; inspect the cause first.
+        """
+        log.debug("%s: dashboard: close safety popup, unlock protective stop", self.name)
+        replies = self._request(
+            "dashboard", ["close safety popup", "unlock protective stop"], timeout_s=self.command_timeout_s
+        )
+        if replies[-1] != "Protective stop releasing":
+            raise ProtectiveStop(f"{self.name}: the controller refused to unlock the protective stop: {replies[-1]!r}")
+        deadline = time.monotonic() + timeout_s
+        while self._status().protective_stop:
+            if time.monotonic() > deadline:
+                raise DeviceTimeout(f"{self.name}: protective stop still active {timeout_s} s after unlocking")
+            time.sleep(self.poll_s)
+        self._ready_for_motion(deadline)
+
+    # ------------------------------------------------------------------ helpers
+    def _checked_pose(self, X: FloatArray, name: str) -> FloatArray:
+        try:
+            return check_X(X, name=name)
+        except TransformError as err:
+            raise MotionRejected(f"{self.name}: {err}") from err
+
+    def _check_motion(self, speed_m_s: float, accel_m_s2: float, timeout_s: float) -> None:
+        if not 0.0 < speed_m_s <= TOOL_SPEED_MAX_M_S:
+            raise MotionRejected(f"{self.name}: speed_m_s={speed_m_s} is outside (0, {TOOL_SPEED_MAX_M_S}] m/s")
+        if not 0.0 < accel_m_s2 <= TOOL_ACCEL_MAX_M_S2:
+            raise MotionRejected(f"{self.name}: accel_m_s2={accel_m_s2} is outside (0, {TOOL_ACCEL_MAX_M_S2}] m/s^2")
+        if not timeout_s > 0.0:
+            raise MotionRejected(f"{self.name}: timeout_s={timeout_s} must be positive")
+
+    def _budget(self, deadline: float) -> float:
+        """Time allowed for one request: the command timeout, but never past the motion's deadline."""
+        return max(0.0, min(self.command_timeout_s, deadline - time.monotonic()))
+
+    def _raise_if_stopped(self, st: _Status, what: str) -> None:
+        here = np.round(st.X_base_tool[:3, 3], 4).tolist()
+        if st.emergency_stop:
+            raise EmergencyStop(
+                f"{self.name}: emergency stop active {what} (tool at {here} m); release it, power on and "
+                "release the brakes before moving"
+            )
+        if st.protective_stop:
+            raise ProtectiveStop(
+                f"{self.name}: protective stop {what} (tool at {here} m); inspect the cause, then "
+                "unlock_protective_stop()"
+            )
+
+    def _ready_for_motion(self, deadline: float) -> _Status:
+        st = self._status()
+        self._raise_if_stopped(st, "before the motion")
+        if st.robot_mode != _ROBOT_MODE_RUNNING:
+            robot_mode = _ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))
+            raise DeviceFault(f"{self.name}: robot mode is {robot_mode}; power the arm on and release its brakes")
+        if not st.program_running:
+            log.info("%s: the ur-rtde control script is not running on %s; uploading it again", self.name, self.host)
+            self._request("reupload", timeout_s=self._budget(deadline))
+        # the control interface has its own RTDE stream: wait until it, too, sees the script running (it refuses
+        # commands otherwise), which may be a cycle or two after the receive interface does
+        limit = min(deadline, time.monotonic() + self.command_timeout_s)
+        while not (st.program_running and st.control_ready):
+            if time.monotonic() > limit:
+                raise DeviceFault(
+                    f"{self.name}: the ur-rtde control script is not running on {self.host} "
+                    f"(runtime state {st.runtime_state}); check the controller's log"
+                )
+            time.sleep(self.poll_s)
+            st = self._status()
+            self._raise_if_stopped(st, "while restarting the control script")
+        return st
+
+    def _raise_refused(self, what: str, X_target: FloatArray) -> None:
+        st = self._status()
+        self._raise_if_stopped(st, f"when {what} was sent")
+        target = np.round(X_target[:3, 3], 4).tolist()
+        if not st.program_running:
+            raise MotionRejected(
+                f"{self.name}: the controller refused {what} to {target} m and stopped its control script "
+                "(unreachable pose or invalid parameters); check the target"
+            )
+        raise MotionRejected(f"{self.name}: the controller did not accept {what} to {target} m")
+
+    def _arrived(self, st: _Status, X_target: FloatArray) -> tuple[bool, float, float]:
+        dist = float(np.linalg.norm(st.X_base_tool[:3, 3] - X_target[:3, 3]))
+        angle = rotation_angle_rad(st.X_base_tool, X_target)
+        return dist <= self.arrive_tol_m and angle <= self.arrive_tol_rad, dist, angle
+
+    def _follow_motion(
+        self,
+        what: str,
+        X_target: FloatArray,
+        deadline: float,
+        *,
+        n_waypoints: int,
+        on_progress: Callable[[int], None] | None,
+    ) -> None:
+        """Poll until the asynchronous motion ends; raise on safety stops, lost data or the deadline."""
+        sent = time.monotonic()
+        seen_running = False
+        reported = -1
+
+        def report(upto: int) -> None:
+            nonlocal reported
+            while on_progress is not None and reported < min(upto, n_waypoints - 1):
+                reported += 1
+                on_progress(reported)
+
+        try:
+            while True:
+                st = self._status()
+                self._raise_if_stopped(st, f"during {what}")
+                if not st.program_running:
+                    raise DeviceFault(
+                        f"{self.name}: the control script stopped during {what}; see the controller's log"
+                    )
+                if st.async_running:
+                    seen_running = True
+                    report(st.async_progress - 1)
+                else:
+                    arrived, _, _ = self._arrived(st, X_target)
+                    if seen_running or (arrived and not st.moving and time.monotonic() - sent > 0.1):
+                        break
+                if time.monotonic() > deadline:
+                    self._stop_quietly()
+                    raise MotionTimeout(
+                        f"{self.name}: {what} did not finish before its timeout; stopped at "
+                        f"{np.round(st.X_base_tool[:3, 3], 4).tolist()} m"
+                    )
+                time.sleep(self.poll_s)
+            arrived, dist, angle = self._arrived(st, X_target)
+            if not arrived:
+                raise MotionRejected(
+                    f"{self.name}: {what} ended {dist * 1e3:.2f} mm and {math.degrees(angle):.2f} deg from its "
+                    f"target {np.round(X_target[:3, 3], 4).tolist()} m"
+                )
+            report(n_waypoints - 1)
+        except DriverError:
+            raise  # the robot is stopped already, or cannot be reached
+        except BaseException:
+            self._stop_quietly()  # an on_progress callback failed or the caller was interrupted: do not keep moving
+            raise
+
+    def _stop_quietly(self) -> None:
+        try:
+            self._request("stop", self.stop_decel_m_s2, timeout_s=min(self.command_timeout_s, 2.0))
+        except DriverError as err:
+            log.warning("%s: stop after a motion timeout failed: %s", self.name, err)
