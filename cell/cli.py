@@ -21,6 +21,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cell.commands.evaluate",
     "cell.commands.detect",
     "cell.commands.bench",
+    "cell.commands.sim",
+    "cell.commands.devices",
 )
 
 EXIT_OK = 0
