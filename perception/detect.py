@@ -39,6 +39,7 @@ from perception.seamfit import (
     FullRes,
     SeamGeometry,
     SeamParams,
+    butt_from_surfaces,
     classify_junction_local,
     fit_edge_path,
     refine_curve,
@@ -198,6 +199,29 @@ def _regions_to_seams(
                 continue
             out.extend(_finish(full, c, labs, params, viewpoint))
         out = _dedupe(out)
+    return out
+
+
+def _butt_seams(
+    pts: FloatArray,
+    labels: NDArray[np.int32],
+    pairs: dict[tuple[int, int], int],
+    params: DetectParams,
+    viewpoint: FloatArray,
+) -> list[SeamGeometry]:
+    """Butt joints come from the coarse stage: two surfaces (masks) that meet in the seam band, lie on
+    one plane and are separated by a narrow gap (the voxel grid would bridge a gap this narrow)."""
+    out: list[SeamGeometry] = []
+    if params.method == "paper":
+        return out  # the paper's fine stage has no butt-joint step
+    for i, j in sorted(pairs):
+        pa, pb = pts[labels == i], pts[labels == j]
+        res = butt_from_surfaces(pa, pb, pts, params.seams, viewpoint)
+        if res is None:
+            continue
+        ends, n, rms, _gap = res
+        nn = np.tile(n, (2, 1))
+        out.append(SeamGeometry("linear", "butt", ends, nn, nn, (-1, -1), (i, j), min(len(pa), len(pb)), rms))
     return out
 
 
@@ -457,6 +481,11 @@ def detect(
     log.counts["cropped"] = len(pts)
     t1 = time.perf_counter()
     geoms = _regions_to_seams(pts, labels, p, log, viewpoint=np.zeros(3))
+    with log.step("butt"):
+        # the gap of a butt joint is itself a depth jump, and the veil filter would trim one plate's edge
+        # more than the other's; the edge tracing ignores off-plane (flying) points on its own
+        band = valid & (coarse.roi_mask if p.crop else True)
+        geoms += _butt_seams(organized[band].astype(np.float64), coarse.masks.labels[band], coarse.pairs, p, np.zeros(3))
     t_fine = time.perf_counter() - t1
     if not geoms:
         raise NoSeamFound(

@@ -27,6 +27,8 @@ class SeamParams:
     max_coplanar_deg: float = 8.0  # surfaces this parallel can only form a butt joint
     concave_margin_m: float = 0.0005
     max_gap_m: float = 0.005  # widest butt-joint gap
+    min_gap_m: float = 0.0003  # a narrower "gap" is one surface split by the segmenter, not a joint
+    butt_max_rms_m: float = 0.0015
     curved_sagitta_m: float = 0.0025  # a fitted line this far from the binned edge path means "curved"
     min_length_m: float = 0.012
     end_trim_m: float = 0.002  # keep path ends this far inside the measured extent
@@ -628,57 +630,94 @@ def _fit_line_2d(p: FloatArray, gate: float) -> tuple[FloatArray, FloatArray, fl
     return c, d, rms
 
 
-def refine_butt(
-    full: FullRes, ra: int, rb: int, line: FloatArray, n0: FloatArray, params: SeamParams, viewpoint: FloatArray
-) -> tuple[FloatArray, FloatArray, float] | None:
-    """Butt joint: the common plane from both plates, then the mid-line between the two plate edges
-    (each edge traced as the outermost points per 2 mm slice and fitted with a line)."""
-    p0, p1 = line[0], line[-1]
-    R = params.refine_band_m
-    pa = _points_near_polyline(full, ra, line, R)
-    pb = _points_near_polyline(full, rb, line, R)
-    if len(pa) < 20 or len(pb) < 20:
+def butt_from_surfaces(
+    pa: FloatArray, pb: FloatArray, band: FloatArray, params: SeamParams, viewpoint: FloatArray
+) -> tuple[FloatArray, FloatArray, float, float] | None:
+    """A butt joint between two surfaces: ``pa``, ``pb`` are the points of the two masks near where they
+    meet, ``band`` all valid points there (masks are imprecise right at a gap, so the edges are traced
+    on every point). Both surfaces must lie on one plane, and a real gap must separate them.
+
+    Per 2 mm slice across the joint, the gap is the widest step between consecutive top-surface samples
+    near the joint. A plate's edge is its side wall where the camera sees that wall inside the gap,
+    otherwise its last sample plus half the sample spacing (the mean shortfall of the last pixel).
+    The seam is the mid-line of the two edge lines. Returns (end points (2, 3), plane normal, RMS,
+    gap width), or None when it is not a butt joint.
+    """
+    if len(pa) < 30 or len(pb) < 30:
+        return None
+    ca, na, rms_a, _ = fit_plane_robust(pa, sigma_gate=params.plane_gate_sigma)
+    cb, nb, rms_b, _ = fit_plane_robust(pb, sigma_gate=params.plane_gate_sigma)
+    if max(rms_a, rms_b) > params.butt_max_rms_m:
+        return None  # not plates: curved or mixed surfaces
+    if abs(na @ nb) < np.cos(np.radians(params.max_coplanar_deg)):
+        return None
+    tol = 0.002 + 3 * max(rms_a, rms_b)
+    if abs((cb - ca) @ na) > tol or abs((ca - cb) @ nb) > tol:
         return None
     c, n, rms, keep = fit_plane_robust(np.vstack([pa, pb]), sigma_gate=params.plane_gate_sigma)
+    if rms > 1.5 * max(rms_a, rms_b, 2e-4):
+        return None
     n = orient_towards(n, c, viewpoint)
-    d = p1 - p0
+    qa, qb = pa[keep[: len(pa)]], pb[keep[len(pa) :]]
+    da, _ = cKDTree(qb).query(qa, distance_upper_bound=0.006)
+    db, _ = cKDTree(qa).query(qb, distance_upper_bound=0.006)
+    border = np.vstack([qa[np.isfinite(da)], qb[np.isfinite(db)]])
+    if len(border) < 20:
+        return None
+    mid, d = fit_line(border - np.outer((border - c) @ n, n))
     d -= (d @ n) * n
     d /= np.linalg.norm(d)
     across = np.cross(n, d)
-    # across points from a to b
-    if (pb.mean(axis=0) - pa.mean(axis=0)) @ across < 0:
+    if (qb.mean(axis=0) - qa.mean(axis=0)) @ across < 0:
         across = -across
-    ka, kb = keep[: len(pa)], keep[len(pa) :]
-    mid = 0.5 * (p0 + p1)
-    edges = []
-    for pts, sign in ((pa[ka], 1.0), (pb[kb], -1.0)):
-        t = (pts - mid) @ d
-        x = (pts - mid) @ across * sign  # towards the gap is positive for both plates
-        bins = np.floor(t / 0.002).astype(np.int64)
-        order = np.lexsort((-x, bins))
-        first = np.concatenate([[True], bins[order][1:] != bins[order][:-1]])
-        te, xe = t[order][first], x[order][first]
-        if len(te) < 5:
-            return None
-        A = np.column_stack([np.ones_like(te), te])
-        coef, *_ = np.linalg.lstsq(A, xe, rcond=None)
-        edges.append((coef, te.min(), te.max(), sign))
-    (ca_, lo_a, hi_a, _), (cb_, lo_b, hi_b, _) = edges
-    lo = max(lo_a, lo_b) + params.end_trim_m
-    hi = min(hi_a, hi_b) - params.end_trim_m
+    rel = band - mid
+    t, x, h = rel @ d, rel @ across, (band - c) @ n
+    near = np.abs(x) < 0.006
+    t, x, h = t[near], x[near], h[near]
+    sigma = max(rms, 1e-4)
+    top = np.abs(h) < 2.5 * sigma
+    below = h < -3.0 * sigma
+    bins = np.floor(t / 0.002).astype(np.int64)
+    rows = []
+    for b in np.unique(bins):
+        sel = bins == b
+        xt = np.sort(x[sel & top])
+        if len(xt) < 6:
+            continue
+        steps = np.diff(xt)
+        k = int(np.argmax(steps))
+        spacing = float(np.median(steps))
+        if steps[k] < 2.5 * max(spacing, 1e-5):
+            continue  # no gap in this slice
+        xa_last, xb_first = xt[k], xt[k + 1]
+        walls = x[sel & below & (x > xa_last - 0.0005) & (x < xb_first + 0.0005)]
+        wall_a = walls[np.abs(walls - xa_last) < 0.0005]
+        wall_b = walls[np.abs(walls - xb_first) < 0.0005]
+        edge_a = float(np.median(wall_a)) if len(wall_a) >= 2 else xa_last + 0.5 * spacing
+        edge_b = float(np.median(wall_b)) if len(wall_b) >= 2 else xb_first - 0.5 * spacing
+        rows.append((float(np.mean(t[sel])), edge_a, edge_b))
+    if len(rows) < 5:
+        return None
+    arr = np.array(rows)
+    A = np.column_stack([np.ones(len(arr)), arr[:, 0]])
+    coefs = []
+    for col in (1, 2):
+        coef, *_ = np.linalg.lstsq(A, arr[:, col], rcond=None)
+        resid = arr[:, col] - A @ coef
+        ok = np.abs(resid) < 3 * max(float(np.std(resid)), 1e-4)
+        coef, *_ = np.linalg.lstsq(A[ok], arr[ok, col], rcond=None)
+        coefs.append(coef)
+    lo = float(arr[:, 0].min()) + params.end_trim_m
+    hi = float(arr[:, 0].max()) - params.end_trim_m
     if hi - lo < params.min_length_m:
         return None
-    gap_lo = (ca_[0] + ca_[1] * lo) + (cb_[0] + cb_[1] * lo)
-    gap_hi = (ca_[0] + ca_[1] * hi) + (cb_[0] + cb_[1] * hi)
-    if max(-gap_lo, -gap_hi) > params.max_gap_m:
+    tt = np.array([lo, hi])
+    xa = coefs[0][0] + coefs[0][1] * tt
+    xb = coefs[1][0] + coefs[1][1] * tt
+    gap = float(np.mean(xb - xa))
+    if not params.min_gap_m <= gap <= params.max_gap_m:
         return None
-
-    # mid-line: edge a at x_a (towards +across), edge b at -x_b: the middle is (x_a - x_b) / 2
-    def mid_at(tt: float) -> FloatArray:
-        xa = ca_[0] + ca_[1] * tt
-        xb = cb_[0] + cb_[1] * tt
-        base = mid + tt * d
-        base = base - ((base - c) @ n) * n
-        return base + 0.5 * (xa - xb) * across
-
-    return np.array([mid_at(lo), mid_at(hi)]), n, rms
+    base = mid + np.outer(tt, d)
+    base = base - np.outer((base - c) @ n, n)
+    ends = base + np.outer(0.5 * (xa + xb), across)
+    return ends, n, rms, gap

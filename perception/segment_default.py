@@ -34,7 +34,9 @@ class GraphSegmenterParams:
     normal_window_px: int = 5
     normal_step_px: int = 2
     max_normal_turn_deg: float = 25.0
-    depth_jump_m: float = 0.003
+    depth_jump_m: float = 0.002
+    depth_footprint_factor: float = 3.0
+    color_edge_threshold: float = 14.0  # gradient of the blurred luminance (0-255) that separates surfaces; 0 = off
     background_min_fraction: float = 0.002
     prompt_search_px: int = 6
 
@@ -55,14 +57,29 @@ class Patches:
     n_components: int
 
 
-def surface_patches(points_camera: NDArray[np.float32], params: GraphSegmenterParams) -> Patches:
+def color_edges(color_rgb: NDArray[np.uint8], f: int, threshold: float) -> NDArray[np.bool_]:
+    """Strong luminance steps (blurred, so texture and sensor noise do not count), at work resolution."""
+    import cv2
+
+    gray = cv2.cvtColor(np.ascontiguousarray(color_rgb[::f, ::f]), cv2.COLOR_RGB2GRAY).astype(np.float32)
+    gray = np.asarray(cv2.GaussianBlur(gray, (5, 5), 1.2), dtype=np.float32)
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3) / 4.0
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3) / 4.0
+    return np.asarray(np.hypot(gx, gy) > threshold)
+
+
+def surface_patches(
+    points_camera: NDArray[np.float32], params: GraphSegmenterParams, color_rgb: NDArray[np.uint8] | None = None
+) -> Patches:
     import cv2
 
     f = _factor(points_camera.shape[1], params.work_width_px)
     pts = np.ascontiguousarray(points_camera[::f, ::f])
     normals = organized_normals(pts, window_px=params.normal_window_px, step_px=params.normal_step_px)
     edges = normal_edges(normals, max_angle_deg=params.max_normal_turn_deg, step_px=params.normal_step_px)
-    edges |= depth_edges(pts, jump_m=params.depth_jump_m)
+    edges |= depth_edges(pts, jump_m=params.depth_jump_m, footprint_factor=params.depth_footprint_factor)
+    if color_rgb is not None and params.color_edge_threshold > 0:
+        edges |= color_edges(color_rgb, f, params.color_edge_threshold)
     edges |= ~np.isfinite(normals[..., 0])
     n, comp = cv2.connectedComponents((~edges).astype(np.uint8), connectivity=4)
     return Patches(f, pts, normals, edges, comp.astype(np.int32), int(n))
@@ -107,7 +124,7 @@ class GraphSegmenter:
         H, W = depth_m.shape
         prompts = np.asarray(prompts_px, dtype=np.float64).reshape(-1, 2)
         K = len(prompts)
-        patches = surface_patches(points_camera, self.params)
+        patches = surface_patches(points_camera, self.params, color_rgb)
         f = patches.factor
         comp = patches.components
         h, w = comp.shape
@@ -167,6 +184,7 @@ def auto_prompts(
     *,
     params: AutoPromptParams | None = None,
     segmenter_params: GraphSegmenterParams | None = None,
+    color_rgb: NDArray[np.uint8] | None = None,
 ) -> FloatArray:
     """(K, 2) pixel prompts, one per workpiece surface patch, found without a human.
 
@@ -177,7 +195,7 @@ def auto_prompts(
     import cv2
 
     ap = params or AutoPromptParams()
-    patches = surface_patches(points_camera, segmenter_params or GraphSegmenterParams())
+    patches = surface_patches(points_camera, segmenter_params or GraphSegmenterParams(), color_rgb)
     comp, f = patches.components, patches.factor
     h, w = comp.shape
     areas = np.bincount(comp.ravel(), minlength=patches.n_components)
