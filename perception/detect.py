@@ -64,7 +64,7 @@ class DetectParams:
     workspace_min_m: tuple[float, float, float] | None = None  # optional box, camera frame
     workspace_max_m: tuple[float, float, float] | None = None
     voxel_m: float = 0.003
-    veil_jump_m: float = 0.008
+    veil_jump_m: float = 0.003
     knn: int = 16
     normal_radius_voxels: float = 2.5
     method: Literal["refined", "paper"] = "refined"
@@ -128,6 +128,7 @@ def _regions_to_seams(
     params: DetectParams,
     log: StepLog,
     viewpoint: FloatArray,
+    pairs: dict[tuple[int, int], int] | None = None,
 ) -> list[SeamGeometry]:
     """The fine stage on an unorganized cloud (camera frame)."""
     sp = params.seams
@@ -166,7 +167,7 @@ def _regions_to_seams(
             .reshape(n_reg, 3)
         )
         region_normals /= np.maximum(np.linalg.norm(region_normals, axis=1, keepdims=True), 1e-12)
-        full = FullRes(pts, regions[grid.point_voxel], cKDTree(pts), region_normals, normals[grid.point_voxel])
+        full = FullRes(pts, regions[grid.point_voxel], cKDTree(pts), region_normals, normals[grid.point_voxel], lab)
         cands = []
         trees: dict[int, cKDTree] = {}
 
@@ -189,13 +190,19 @@ def _regions_to_seams(
             kind, line = fit_edge_path(center_pts, sp, params.voxel_m)
             fitted.append(_Cand(kind, line, (e.a,), (e.b,), na, nb, rms, len(center_pts)))
         fitted = _group_collinear(fitted, voxel_m=params.voxel_m)
+        if lab is not None and pairs and params.method != "paper":
+            fitted += _mask_pair_candidates(pts, lab, pairs, fitted, sp, viewpoint)
     log.counts["seam_groups"] = len(fitted)
     with log.step("refine"):
         for c in fitted:
-            labs = (_majority(grid.labels, regions, c.regions_a), _majority(grid.labels, regions, c.regions_b))
-            if labels is not None and min(labs) < 0:
+            labs = c.seed_labels or (
+                _majority(grid.labels, regions, c.regions_a),
+                _majority(grid.labels, regions, c.regions_b),
+            )
+            if labels is not None and (min(labs) < 0 or labs[0] == labs[1]):
                 # one side is mostly background (table, fixture): a workpiece edge standing on the
-                # table is a concave junction, but not a seam of the workpiece
+                # table is a concave junction, but not a seam of the workpiece. And a seam joins two
+                # distinct surfaces: the same label on both sides is a mask bleeding over a fold
                 continue
             out.extend(_finish(full, c, labs, params, viewpoint))
         out = _dedupe(out)
@@ -273,6 +280,57 @@ class _Cand:
     nb: FloatArray
     rms: float
     support: int
+    seed_labels: tuple[int, int] | None = None  # a candidate proposed by two coarse masks
+
+
+def _mask_pair_candidates(
+    pts: FloatArray,
+    lab: NDArray[np.int32],
+    pairs: dict[tuple[int, int], int],
+    have: list[_Cand],
+    sp: SeamParams,
+    viewpoint: FloatArray,
+) -> list[_Cand]:
+    """Fillet candidates proposed by the coarse stage: two surface masks meeting in the seam band at a
+    concave fold. They catch junctions region growing missed (a face only a few voxels wide, like the
+    edge of a lap joint's upper plate); those a region candidate already covers are skipped."""
+    from perception.seamfit import classify_junction, plane_intersection
+
+    out: list[_Cand] = []
+    for i, j in sorted(pairs):
+        pa, pb = pts[lab == i], pts[lab == j]
+        if len(pa) < 30 or len(pb) < 30:
+            continue
+        da, _ = cKDTree(pb).query(pa, distance_upper_bound=0.008)
+        db, _ = cKDTree(pa).query(pb, distance_upper_bound=0.008)
+        ba, bb = pa[np.isfinite(da)], pb[np.isfinite(db)]
+        if len(ba) < 20 or len(bb) < 20:
+            continue
+        joint, na, nb, rms = classify_junction(ba, bb, sp, viewpoint)
+        if joint != "fillet":
+            continue
+        border = np.vstack([ba, bb])
+        p0, d = plane_intersection(ba.mean(axis=0), na, bb.mean(axis=0), nb, border.mean(axis=0))
+        t = (border - p0) @ d
+        line = np.array([p0 + t.min() * d, p0 + t.max() * d])
+        if any(_covers(c.line, line) for c in have):
+            continue
+        out.append(_Cand("linear", line, (), (), na, nb, rms, len(border), seed_labels=(i, j)))
+    return out
+
+
+def _covers(a: FloatArray, b: FloatArray, *, tol_m: float = 0.004) -> bool:
+    """True when line b lies along line a (both ends within ``tol_m`` of a's line) and they overlap."""
+    d = a[-1] - a[0]
+    la = float(np.linalg.norm(d))
+    if la < 1e-9:
+        return False
+    d = d / la
+    rel = b[[0, -1]] - a[0]
+    t = rel @ d
+    if np.linalg.norm(rel - np.outer(t, d), axis=1).max() > tol_m:
+        return False
+    return bool(t.max() > 0 and t.min() < la)
 
 
 def _majority(voxel_labels: NDArray[np.int32], regions: NDArray[np.int32], ids: tuple[int, ...]) -> int:
@@ -376,21 +434,29 @@ def _finish(
                 line,
                 np.tile(c.na, (nn, 1)),
                 np.tile(c.nb, (nn, 1)),
-                (ra[0], rb[0]),
+                (ra[0] if ra else -1, rb[0] if rb else -1),
                 labs,
                 c.support,
                 c.rms,
             )
         ]
     if c.kind == "linear":
-        res_l = refine_linear(full, ra, rb, line, c.na, c.nb, sp, viewpoint)
+        res_l = refine_linear(full, ra, rb, line, c.na, c.nb, sp, viewpoint, seed_labels=c.seed_labels)
         if res_l is None:
             return []
         ends, n_a, n_b, r = res_l
         pieces = ends.reshape(-1, 2, 3)
         return [
             SeamGeometry(
-                "linear", "fillet", e, np.tile(n_a, (2, 1)), np.tile(n_b, (2, 1)), (ra[0], rb[0]), labs, c.support, r
+                "linear",
+                "fillet",
+                e,
+                np.tile(n_a, (2, 1)),
+                np.tile(n_b, (2, 1)),
+                (ra[0] if ra else -1, rb[0] if rb else -1),
+                labs,
+                c.support,
+                r,
             )
             for e in pieces
         ]
@@ -398,7 +464,9 @@ def _finish(
     if res_c is None:
         return []
     pts, n_a, n_b, r = res_c
-    return [SeamGeometry("curved", "fillet", pts, n_a, n_b, (ra[0], rb[0]), labs, c.support, r)]
+    return [
+        SeamGeometry("curved", "fillet", pts, n_a, n_b, (ra[0] if ra else -1, rb[0] if rb else -1), labs, c.support, r)
+    ]
 
 
 def _to_seams(geoms: list[SeamGeometry], params: DetectParams, frame_X: FloatArray | None) -> list[Seam]:
@@ -480,12 +548,14 @@ def detect(
         labels = coarse.masks.labels[keep]
     log.counts["cropped"] = len(pts)
     t1 = time.perf_counter()
-    geoms = _regions_to_seams(pts, labels, p, log, viewpoint=np.zeros(3))
+    geoms = _regions_to_seams(pts, labels, p, log, viewpoint=np.zeros(3), pairs=coarse.pairs)
     with log.step("butt"):
         # the gap of a butt joint is itself a depth jump, and the veil filter would trim one plate's edge
         # more than the other's; the edge tracing ignores off-plane (flying) points on its own
         band = valid & (coarse.roi_mask if p.crop else True)
-        geoms += _butt_seams(organized[band].astype(np.float64), coarse.masks.labels[band], coarse.pairs, p, np.zeros(3))
+        geoms += _butt_seams(
+            organized[band].astype(np.float64), coarse.masks.labels[band], coarse.pairs, p, np.zeros(3)
+        )
     t_fine = time.perf_counter() - t1
     if not geoms:
         raise NoSeamFound(

@@ -108,22 +108,39 @@ def depth_edges(points: FloatImage, *, jump_m: float, footprint_factor: float = 
 
 
 def veil_mask(
-    points: FloatImage, *, jump_m: float = 0.008, window_px: int = 5, dilate_px: int = 2
+    points: FloatImage, *, jump_m: float = 0.003, spike_ratio: float = 2.5, window_px: int = 5, dilate_px: int = 2
 ) -> NDArray[np.bool_]:
-    """Pixels near a depth discontinuity larger than ``jump_m`` (plus 8 pixel footprints), measured on
-    the box-smoothed cloud so sensor noise does not trigger it: where flying pixels hang."""
+    """Pixels at a depth discontinuity, where flying pixels hang between foreground and background.
+
+    On the box-smoothed cloud (so sensor noise does not trigger it), a pixel is at a discontinuity when
+    the 3D step across it exceeds ``jump_m`` and ``spike_ratio`` times the larger of the steps just
+    before and after it: a surface seen obliquely has large but even steps, and a fold between a flat
+    and a steep face has the steep face's steps on one side, but a discontinuity is one spike.
+    """
     import cv2
 
     sm, _ = smooth_points(points, window_px=window_px)
-    z = sm[..., 2]
-    thr = jump_m + 8.0 * pixel_angle_rad(points) * np.nan_to_num(z)
     s = 2
-    edge = np.zeros(z.shape, bool)
+    edge = np.zeros(sm.shape[:2], bool)
     with np.errstate(invalid="ignore"):
-        du = np.linalg.norm(sm[:, 2 * s :] - sm[:, : -2 * s], axis=-1) > thr[:, s:-s]
-        dv = np.linalg.norm(sm[2 * s :, :] - sm[: -2 * s, :], axis=-1) > thr[s:-s, :]
-    edge[:, s:-s] |= du
-    edge[s:-s, :] |= dv
+        for axis in (0, 1):
+            n = sm.shape[axis]
+            if n <= 6 * s:
+                continue
+
+            def shifted(k: int, n: int = n, axis: int = axis) -> FloatImage:
+                return np.take(sm, np.arange(3 * s + k, n - 3 * s + k), axis=axis)
+
+            d0 = np.linalg.norm(shifted(s) - shifted(-s), axis=-1)
+            d_prev = np.linalg.norm(shifted(-s) - shifted(-3 * s), axis=-1)
+            d_next = np.linalg.norm(shifted(3 * s) - shifted(s), axis=-1)
+            calm = np.fmax(d_prev, d_next)
+            spike = (d0 > jump_m) & ~(d0 <= spike_ratio * np.nan_to_num(calm, nan=np.inf))
+            spike |= (d0 > jump_m) & np.isnan(calm)
+            if axis == 0:
+                edge[3 * s : n - 3 * s, :] |= spike
+            else:
+                edge[:, 3 * s : n - 3 * s] |= spike
     if dilate_px > 0:
         k = 2 * dilate_px + 1
         edge = cv2.dilate(edge.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)

@@ -208,6 +208,7 @@ class FullRes:
     tree: cKDTree
     region_normals: FloatArray
     normals: FloatArray  # (N, 3) each point's voxel normal
+    labels: NDArray[np.int32] | None = None  # (N,) coarse surface label, when the coarse stage ran
 
     def compatible(self, idx: NDArray[np.int64], n: FloatArray, max_angle_deg: float = 15.0) -> NDArray[np.bool_]:
         """Points (by index) that could be part of a face with normal ``n``: regions facing the same way
@@ -333,10 +334,13 @@ def refine_linear(
     nb0: FloatArray,
     params: SeamParams,
     viewpoint: FloatArray,
+    *,
+    seed_labels: tuple[int, int] | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
     """Intersect planes fitted to the full-resolution points of both surfaces near the seam.
 
-    1. Seed: the regions' points near the coarse line give the first plane pair.
+    1. Seed: the regions' points near the coarse line give the first plane pair (or, with
+       ``seed_labels``, the points of two coarse surface masks).
     2. Iterate: every full-resolution point near the line joins the face whose plane it is close to
        (regions facing another way are kept out), points near the junction (a few sigma) and near the
        seam's ends (where a third face meets it) are left out, the planes are refitted and intersected.
@@ -352,9 +356,13 @@ def refine_linear(
     half = 0.5 * float(np.linalg.norm(p1 - p0))
     window = (-half - R, half + R)
     idx = _indices_near_polyline(full, _segment(center, direction, window), R)
-    reg = full.regions[idx]
-    in_a = np.isin(reg, np.atleast_1d(ra))
-    in_b = np.isin(reg, np.atleast_1d(rb))
+    if seed_labels is not None and full.labels is not None:
+        lab = full.labels[idx]
+        in_a, in_b = lab == seed_labels[0], lab == seed_labels[1]
+    else:
+        reg = full.regions[idx]
+        in_a = np.isin(reg, np.atleast_1d(ra))
+        in_b = np.isin(reg, np.atleast_1d(rb))
     if in_a.sum() < 20 or in_b.sum() < 20:
         return None
     exclude = max(params.refine_exclude_m, 0.5 * R / 3)
@@ -374,7 +382,7 @@ def refine_linear(
         center = new_center
         window = (window[0] - shift, window[1] - shift)
         exclude = max(params.refine_exclude_m, 2.5 * max(rms_a, rms_b))
-        in_a, in_b = _membership(full, idx, pts, ca, na, rms_a, cb, nb, rms_b, params)
+        in_a, in_b = _membership(full, idx, pts, ca, na, rms_a, cb, nb, rms_b, params, seed_labels)
         runs = _runs_for(pts, in_a, in_b, center, direction, exclude, params)
         if not runs:
             return None
@@ -392,7 +400,7 @@ def refine_linear(
             window = (window[0] - step * grow_lo, window[1] + step * grow_hi)
             idx = _indices_near_polyline(full, _segment(center, direction, window), R)
             pts = full.points[idx]
-            in_a, in_b = _membership(full, idx, pts, ca, na, rms_a, cb, nb, rms_b, params)
+            in_a, in_b = _membership(full, idx, pts, ca, na, rms_a, cb, nb, rms_b, params, seed_labels)
     assert fit is not None
     ca, na, rms_a, cb, nb, rms_b = fit
     segments = []
@@ -449,15 +457,22 @@ def _membership(
     nb: FloatArray,
     rms_b: float,
     params: SeamParams,
+    seed_labels: tuple[int, int] | None = None,
 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """Each point joins the face whose plane it is near (within a few sigma, and nearer than to the
-    other), provided its region faces that way."""
+    other), provided its region faces that way (or, for a mask-seeded seam, its mask is that face's)."""
     da = np.abs((pts - ca) @ na)
     db = np.abs((pts - cb) @ nb)
     gate_a = params.plane_gate_sigma * max(rms_a, 2e-4)
     gate_b = params.plane_gate_sigma * max(rms_b, 2e-4)
-    in_a = (da < gate_a) & (da < db) & full.compatible(idx, na)
-    in_b = (db < gate_b) & (db <= da) & full.compatible(idx, nb)
+    ok_a = full.compatible(idx, na)
+    ok_b = full.compatible(idx, nb)
+    if seed_labels is not None and full.labels is not None:
+        lab = full.labels[idx]
+        ok_a |= lab == seed_labels[0]
+        ok_b |= lab == seed_labels[1]
+    in_a = (da < gate_a) & (da < db) & ok_a
+    in_b = (db < gate_b) & (db <= da) & ok_b
     return in_a, in_b
 
 

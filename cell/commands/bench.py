@@ -11,7 +11,7 @@ import importlib
 
 # Benchmark subcommand modules, imported when the parser is built; each keeps heavy imports inside
 # its handler so that `weldcell --help` stays fast.
-BENCH_MODULES: tuple[str, ...] = ("cell.commands.bench_calibration",)
+BENCH_MODULES: tuple[str, ...] = ("cell.commands.bench_seams", "cell.commands.bench_calibration")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -21,6 +21,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Benchmarks on synthetic data with known truth. Each prints a table, or JSON with --json.",
     )
     bench_sub = parser.add_subparsers(dest="bench_command", metavar="BENCHMARK")
-    bench_sub.required = True
+    bench_sub.required = False
     for name in BENCH_MODULES:
         importlib.import_module(name).add_parser(bench_sub)
+    # plain `weldcell bench` is the seam-detection benchmark with its default options
+    from cell.commands import bench_seams
+
+    bench_seams.add_options(parser)
+    parser.set_defaults(func=bench_seams.run)

@@ -1,0 +1,48 @@
+"""The seam benchmark runs and reports what it measured (a small subset; the full run is `weldcell bench`)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from cell.cli import main
+
+
+@pytest.mark.timeout(120)
+def test_bench_subset_reports_tables_and_plot(tmp_path: Path, capsys) -> None:
+    code = main(
+        [
+            "bench",
+            "--scenes",
+            "t_joint",
+            "--noise",
+            "structured",
+            "--repeats",
+            "1",
+            "--sweep",
+            "t_joint",
+            "--quick",
+            "--out",
+            str(tmp_path),
+            "--json",
+        ]  # fmt: skip
+    )
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert (tmp_path / "bench.png").stat().st_size > 20_000
+    assert json.loads((tmp_path / "bench.json").read_text()) == doc
+    t1 = {r["method"]: r for r in doc["table1"]}
+    assert t1["refined"]["found"] == 1 and t1["refined"]["false"] == 0
+    assert t1["refined"]["rmse_mm"] < 0.1
+    # the refinement is what beats the voxel: the plain paper method is several times worse
+    assert t1["paper"]["rmse_mm"] > 3 * t1["refined"]["rmse_mm"]
+    crop = {r["crop"]: r for r in doc["table2"]}
+    assert crop[True]["points_cropped"] < 0.2 * crop[False]["points_cropped"]
+    sweep = {(r["voxel_mm"], r["method"]): r for r in doc["voxel_sweep"]}
+    # the refined method finds the seam at every voxel size, below 0.1 mm
+    assert all(sweep[(v, "refined")]["found"] == 1 for v in (1, 3, 6, 10))
+    assert max(sweep[(v, "refined")]["rmse_mm"] for v in (1, 3, 6, 10)) < 0.1
+    # the paper's error grows with the voxel size (at stereo noise it fails outright at 1 and 10 mm)
+    assert sweep[(3, "paper")]["rmse_mm"] < sweep[(6, "paper")]["rmse_mm"]
