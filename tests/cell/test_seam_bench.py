@@ -27,7 +27,7 @@ def test_bench_subset_reports_tables_and_plot(tmp_path: Path, capsys) -> None:
             "--out",
             str(tmp_path),
             "--json",
-        ]  # fmt: skip
+        ]
     )
     assert code == 0
     doc = json.loads(capsys.readouterr().out)
