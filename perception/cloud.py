@@ -83,7 +83,7 @@ class Neighbourhoods:
 def neighbourhoods(points: FloatArray, *, k: int = 16, radius_m: float = 0.0075) -> Neighbourhoods:
     tree = cKDTree(points)
     k_eff = min(k, len(points))
-    dist, idx = tree.query(points, k=k_eff)
+    dist, idx = tree.query(points, k=k_eff, workers=2)
     dist = dist.reshape(len(points), k_eff)
     idx = idx.reshape(len(points), k_eff)
     return Neighbourhoods(tree, idx.astype(np.int64), dist, dist <= radius_m)
@@ -125,6 +125,7 @@ def grow_regions(
     *,
     params: RegionParams | None = None,
     labels: NDArray[np.int32] | None = None,
+    max_link_m: float | None = None,
 ) -> NDArray[np.int32]:
     """Region growing as in PCL's RegionGrowing, seeded from the lowest curvature.
 
@@ -147,7 +148,8 @@ def grow_regions(
     cos_t = np.cos(np.radians(p.max_angle_deg))
     idx = nbh.idx
     nb_normals = normals[idx]  # (M, k, 3)
-    smooth = nbh.valid & (np.abs((nb_normals * normals[:, None, :]).sum(axis=2)) >= cos_t)
+    linked = nbh.valid if max_link_m is None else nbh.valid & (nbh.dist <= max_link_m)
+    smooth = linked & (np.abs((nb_normals * normals[:, None, :]).sum(axis=2)) >= cos_t)
     if labels is not None:
         smooth &= labels[idx] == labels[:, None]
     smooth[:, 0] = False  # self

@@ -42,6 +42,7 @@ from perception.seamfit import (
     butt_from_surfaces,
     classify_junction_local,
     fit_edge_path,
+    fit_plane,
     refine_curve,
     refine_linear,
     region_edges,
@@ -81,6 +82,7 @@ class StepLog:
     def __init__(self) -> None:
         self.timing_s: dict[str, float] = {}
         self.counts: dict[str, int] = {}
+        self.voxel_planes: dict[int, tuple[FloatArray, FloatArray, float]] = {}  # per coarse label
 
     @contextmanager
     def step(self, name: str) -> Iterator[None]:
@@ -146,6 +148,11 @@ def _regions_to_seams(
         raise NoSeamFound(f"only {len(pts)} points left after the pass-through filter")
     with log.step("voxel"):
         grid = voxel_downsample(pts, voxel_m=params.voxel_m, labels=lab)
+        if lab is not None:
+            for k in np.unique(grid.labels[grid.labels >= 0]):
+                q = grid.centroids[grid.labels == k]
+                if len(q) >= 6:
+                    log.voxel_planes[int(k)] = fit_plane(q)
     log.counts["downsampled"] = len(grid.centroids)
     with log.step("kdtree"):
         nbh = neighbourhoods(grid.centroids, k=params.knn, radius_m=params.normal_radius_voxels * params.voxel_m)
@@ -191,7 +198,7 @@ def _regions_to_seams(
             fitted.append(_Cand(kind, line, (e.a,), (e.b,), na, nb, rms, len(center_pts)))
         fitted = _group_collinear(fitted, voxel_m=params.voxel_m)
         if lab is not None and pairs and params.method != "paper":
-            fitted += _mask_pair_candidates(pts, lab, pairs, fitted, sp, viewpoint)
+            fitted += _mask_pair_candidates(grid.centroids, grid.labels, pairs, fitted, sp, viewpoint, params.voxel_m)
     log.counts["seam_groups"] = len(fitted)
     with log.step("refine"):
         for c in fitted:
@@ -210,20 +217,37 @@ def _regions_to_seams(
 
 
 def _butt_seams(
-    pts: FloatArray,
-    labels: NDArray[np.int32],
+    organized: NDArray[np.float32],
+    band: NDArray[np.bool_],
+    label_image: NDArray[np.int32],
     pairs: dict[tuple[int, int], int],
+    voxel_planes: dict[int, tuple[FloatArray, FloatArray, float]],
     params: DetectParams,
     viewpoint: FloatArray,
 ) -> list[SeamGeometry]:
     """Butt joints come from the coarse stage: two surfaces (masks) that meet in the seam band, lie on
-    one plane and are separated by a narrow gap (the voxel grid would bridge a gap this narrow)."""
+    one plane and are separated by a narrow gap (the voxel grid would bridge a gap this narrow).
+
+    The cheap test runs on each mask's plane from the voxel grid; only coplanar neighbours get the
+    full-resolution edge tracing, on every valid pixel of the band (no veil filter: the gap itself is a
+    depth jump, and the filter would trim one plate's edge more than the other's)."""
     out: list[SeamGeometry] = []
     if params.method == "paper":
         return out  # the paper's fine stage has no butt-joint step
+    cos_max = np.cos(np.radians(2 * params.seams.max_coplanar_deg))
+    band_pts: FloatArray | None = None
+    band_lab: NDArray[np.int32] | None = None
     for i, j in sorted(pairs):
-        pa, pb = pts[labels == i], pts[labels == j]
-        res = butt_from_surfaces(pa, pb, pts, params.seams, viewpoint)
+        pi, pj = voxel_planes.get(i), voxel_planes.get(j)
+        if pi is None or pj is None or abs(pi[1] @ pj[1]) < cos_max:
+            continue
+        if abs((pj[0] - pi[0]) @ pi[1]) > 0.004 + pi[2] + pj[2]:
+            continue
+        if band_pts is None or band_lab is None:
+            band_pts = organized[band].astype(np.float64)
+            band_lab = label_image[band]
+        pa, pb = band_pts[band_lab == i], band_pts[band_lab == j]
+        res = butt_from_surfaces(pa, pb, band_pts, params.seams, viewpoint)
         if res is None:
             continue
         ends, n, rms, _gap = res
@@ -284,27 +308,39 @@ class _Cand:
 
 
 def _mask_pair_candidates(
-    pts: FloatArray,
-    lab: NDArray[np.int32],
+    centroids: FloatArray,
+    voxel_labels: NDArray[np.int32],
     pairs: dict[tuple[int, int], int],
     have: list[_Cand],
     sp: SeamParams,
     viewpoint: FloatArray,
+    voxel_m: float,
 ) -> list[_Cand]:
     """Fillet candidates proposed by the coarse stage: two surface masks meeting in the seam band at a
     concave fold. They catch junctions region growing missed (a face only a few voxels wide, like the
-    edge of a lap joint's upper plate); those a region candidate already covers are skipped."""
+    edge of a lap joint's upper plate); those a region candidate already covers are skipped. Proposed
+    on the labelled voxel centroids (cheap); the refinement then works on full-resolution points."""
     from perception.seamfit import classify_junction, plane_intersection
 
     out: list[_Cand] = []
+    trees: dict[int, tuple[FloatArray, cKDTree]] = {}
+
+    def tree_of(k: int) -> tuple[FloatArray, cKDTree]:
+        if k not in trees:
+            p = centroids[voxel_labels == k]
+            trees[k] = (p, cKDTree(p))
+        return trees[k]
+
+    reach = max(0.008, 2.5 * voxel_m)
     for i, j in sorted(pairs):
-        pa, pb = pts[lab == i], pts[lab == j]
-        if len(pa) < 30 or len(pb) < 30:
+        pa, ta = tree_of(i)
+        pb, tb = tree_of(j)
+        if len(pa) < 6 or len(pb) < 6:
             continue
-        da, _ = cKDTree(pb).query(pa, distance_upper_bound=0.008)
-        db, _ = cKDTree(pa).query(pb, distance_upper_bound=0.008)
+        da, _ = tb.query(pa, distance_upper_bound=reach)
+        db, _ = ta.query(pb, distance_upper_bound=reach)
         ba, bb = pa[np.isfinite(da)], pb[np.isfinite(db)]
-        if len(ba) < 20 or len(bb) < 20:
+        if len(ba) < 4 or len(bb) < 4:
             continue
         joint, na, nb, rms = classify_junction(ba, bb, sp, viewpoint)
         if joint != "fillet":
@@ -538,7 +574,10 @@ def detect(
     with log.step("veil"):
         # flying ("veil") pixels at occlusion edges hang between foreground and background; they would
         # join surfaces that do not touch. Concave seams have no depth jump, so they lose nothing.
-        veil = veil_mask(organized, jump_m=p.veil_jump_m) & valid
+        f = 2 if organized.shape[1] >= 960 else 1  # half resolution is plenty to find depth jumps
+        small = veil_mask(np.ascontiguousarray(organized[::f, ::f]), jump_m=p.veil_jump_m, dilate_px=1)
+        H, W = valid.shape
+        veil = np.repeat(np.repeat(small, f, axis=0), f, axis=1)[:H, :W] & valid
     log.counts["veil"] = int(veil.sum())
     with log.step("crop"):
         keep = valid & ~veil
@@ -550,11 +589,9 @@ def detect(
     t1 = time.perf_counter()
     geoms = _regions_to_seams(pts, labels, p, log, viewpoint=np.zeros(3), pairs=coarse.pairs)
     with log.step("butt"):
-        # the gap of a butt joint is itself a depth jump, and the veil filter would trim one plate's edge
-        # more than the other's; the edge tracing ignores off-plane (flying) points on its own
         band = valid & (coarse.roi_mask if p.crop else True)
         geoms += _butt_seams(
-            organized[band].astype(np.float64), coarse.masks.labels[band], coarse.pairs, p, np.zeros(3)
+            organized, band, coarse.masks.labels, coarse.pairs, log.voxel_planes, p, viewpoint=np.zeros(3)
         )
     t_fine = time.perf_counter() - t1
     if not geoms:

@@ -40,6 +40,7 @@ class SeamParams:
     plane_gate_sigma: float = 3.0
     slab_half_width_m: float = 0.0025  # cross-section slab for curved seams
     curve_step_m: float = 0.002
+    max_incidence_deg: float = 78.0
 
 
 @dataclass(frozen=True)
@@ -66,10 +67,11 @@ class SeamGeometry:
 
 
 def fit_plane(p: FloatArray) -> tuple[FloatArray, FloatArray, float]:
-    """Least-squares plane: (centroid, unit normal, RMS distance)."""
+    """Least-squares plane: (centroid, unit normal, RMS distance), from the 3x3 scatter matrix."""
     c = p.mean(axis=0)
-    _, s, vt = np.linalg.svd(p - c, full_matrices=False)
-    return c, vt[2], float(s[2] / np.sqrt(max(len(p), 1)))
+    q = p - c
+    evals, evecs = np.linalg.eigh(q.T @ q)
+    return c, evecs[:, 0], float(np.sqrt(max(evals[0], 0.0) / max(len(p), 1)))
 
 
 def fit_plane_robust(
@@ -225,8 +227,9 @@ def _indices_near_polyline(full: FullRes, line: FloatArray, radius: float) -> ND
     """Indices of full-res points within about ``radius`` of a polyline (query balls along it)."""
     from perception.evaluate import resample_polyline
 
-    samples = resample_polyline(line, radius)
-    hits = full.tree.query_ball_point(samples, radius * 1.5)
+    # balls every 2R of radius sqrt(2)R cover the cylinder of radius R around each segment
+    samples = resample_polyline(line, 2 * radius)
+    hits = full.tree.query_ball_point(samples, 1.42 * radius, workers=2)
     if not len(hits):
         return np.zeros(0, np.int64)
     return np.unique(np.concatenate([np.asarray(h, dtype=np.int64) for h in hits]))
@@ -272,10 +275,14 @@ def classify_junction_local(
 ) -> tuple[str, FloatArray, FloatArray, float]:
     """Classify a junction from local plane pairs at anchors along it (a curved surface is planar only
     locally). Majority vote of the anchors; the normals returned are the mean of the winning anchors'."""
-    anchors: list[FloatArray] = []
-    for p in edge_points[np.argsort(edge_points[:, 0] + 1e3 * edge_points[:, 1])]:
-        if all(np.linalg.norm(p - q) >= anchor_spacing_m for q in anchors):
-            anchors.append(p)
+    # anchors: edge points about ``anchor_spacing_m`` apart along the junction's main direction
+    c = edge_points.mean(axis=0)
+    _, _, vt = np.linalg.svd(edge_points - c, full_matrices=False)
+    t = (edge_points - c) @ vt[0]
+    targets = np.arange(t.min(), t.max() + anchor_spacing_m / 2, anchor_spacing_m)
+    order = np.argsort(t)
+    pick = np.unique(order[np.clip(np.searchsorted(t[order], targets), 0, len(t) - 1)])
+    anchors = list(edge_points[pick])
     votes: dict[str, list[tuple[FloatArray, FloatArray, float]]] = {}
     r = params.patch_radius_m
     for q in anchors:
@@ -371,7 +378,9 @@ def refine_linear(
     runs: list[tuple[float, float]] = []
     for it in range(12):
         pts = full.points[idx]
-        fit = _fit_plane_pair(pts, in_a, in_b, center, direction, exclude, R, (t_lo, t_hi), params, viewpoint)
+        fit = _fit_plane_pair(
+            pts, in_a, in_b, center, direction, exclude, R, (t_lo, t_hi), params, viewpoint, max_points=3000
+        )
         if fit is None:
             return None
         ca, na, rms_a, cb, nb, rms_b = fit
@@ -379,6 +388,7 @@ def refine_linear(
         if direction @ d < 0:
             direction = -direction
         shift = float((new_center - center) @ direction)
+        moved = float(np.linalg.norm(new_center - center - shift * direction))
         center = new_center
         window = (window[0] - shift, window[1] - shift)
         exclude = max(params.refine_exclude_m, 2.5 * max(rms_a, rms_b))
@@ -393,7 +403,7 @@ def refine_linear(
         # track: grow the window where the seam reaches its edge
         grow_lo = lo < window[0] + R
         grow_hi = hi > window[1] - R
-        if it >= 2 and not (grow_lo or grow_hi):
+        if it >= 1 and not (grow_lo or grow_hi) and moved < 1e-5:
             break
         if grow_lo or grow_hi:
             step = max(0.03, 0.5 * (window[1] - window[0]))
@@ -402,6 +412,16 @@ def refine_linear(
             pts = full.points[idx]
             in_a, in_b = _membership(full, idx, pts, ca, na, rms_a, cb, nb, rms_b, params, seed_labels)
     assert fit is not None
+    # final fit on every point of the converged faces and extent
+    final = _fit_plane_pair(
+        full.points[idx], in_a, in_b, center, direction, exclude, R, (t_lo, t_hi), params, viewpoint
+    )
+    if final is not None:
+        fit = final
+        ca, na, rms_a, cb, nb, rms_b = fit
+        center, direction = plane_intersection(ca, na, cb, nb, center)
+        if direction @ d < 0:
+            direction = -direction
     ca, na, rms_a, cb, nb, rms_b = fit
     segments = []
     for lo, hi in runs:
@@ -429,14 +449,19 @@ def _fit_plane_pair(
     t_range: tuple[float, float],
     params: SeamParams,
     viewpoint: FloatArray,
+    max_points: int = 0,
 ) -> tuple[FloatArray, FloatArray, float, FloatArray, FloatArray, float] | None:
     rel = pts - center
     t = rel @ direction
     dist_line = np.linalg.norm(rel - np.outer(t, direction), axis=1)
     use = (dist_line > exclude) & (dist_line < band) & (t > t_range[0]) & (t < t_range[1])
-    sel_a, sel_b = use & in_a, use & in_b
-    if sel_a.sum() < 10 or sel_b.sum() < 10:
+    sel_a, sel_b = np.flatnonzero(use & in_a), np.flatnonzero(use & in_b)
+    if len(sel_a) < 10 or len(sel_b) < 10:
         return None
+    if max_points:
+        # evenly thinned (deterministic): the intermediate passes only need the planes roughly
+        sel_a = sel_a[:: max(1, len(sel_a) // max_points)]
+        sel_b = sel_b[:: max(1, len(sel_b) // max_points)]
     ca, na, rms_a, _ = fit_plane_robust(pts[sel_a], sigma_gate=params.plane_gate_sigma)
     cb, nb, rms_b, _ = fit_plane_robust(pts[sel_b], sigma_gate=params.plane_gate_sigma)
     na = orient_towards(na, ca, viewpoint)
@@ -533,33 +558,30 @@ def refine_curve(
     viewpoint: FloatArray,
 ) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
     """Cross-section refinement of a curved seam: in thin slabs across the seam, fit the trace of each
-    surface as a 2D line and intersect them. Returns dense points, normals a / b and RMS."""
+    surface as a 2D line and intersect them; then track the seam beyond both ends of the coarse curve
+    (extrapolate 2 mm along the tangent, fit the slab there, keep it while both faces are found near
+    the prediction). Returns dense points, normals a / b and the median fit RMS."""
     from perception.evaluate import resample_polyline
 
     samples = resample_polyline(curve, params.curve_step_m)
     tang = np.gradient(samples, axis=0)
     tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-12)
-    R = params.refine_band_m
-    out_p, out_na, out_nb, rmss = [], [], [], []
+    fits: list[tuple[FloatArray, FloatArray, FloatArray, float]] = []
     for s, T in zip(samples, tang, strict=True):
-        idx = np.asarray(full.tree.query_ball_point(s, R), dtype=np.int64)
+        idx = np.asarray(full.tree.query_ball_point(s, params.refine_band_m), dtype=np.int64)
         if idx.size < 20:
             continue
-        q = full.points[idx]
-        rel = q - s
-        slab = np.abs(rel @ T) < params.slab_half_width_m
         reg = full.regions[idx]
-        res = _corner_2d(rel[slab], reg[slab], ra, rb, T, params, viewpoint - s)
-        if res is None:
-            continue
-        corner, n_a, n_b, rms = res
-        out_p.append(s + corner)
-        out_na.append(n_a)
-        out_nb.append(n_b)
-        rmss.append(rms)
-    if len(out_p) < 4:
+        in_a, in_b = np.isin(reg, np.atleast_1d(ra)), np.isin(reg, np.atleast_1d(rb))
+        res = _slab_corner(full, idx, s, T, in_a, in_b, params, viewpoint)
+        if res is not None:
+            fits.append(res)
+    fits = [f for f in fits if _seen_well(f, viewpoint, params)]
+    if len(fits) < 4:
         return None
-    pts = np.array(out_p)
+    fits = _track_curve(full, fits, params, viewpoint, forward=True)
+    fits = _track_curve(full, fits, params, viewpoint, forward=False)
+    pts = np.array([f[0] for f in fits])
     # light smoothing along the seam (3-point moving average, ends kept)
     sm = pts.copy()
     sm[1:-1] = (pts[:-2] + pts[1:-1] + pts[2:]) / 3.0
@@ -569,14 +591,90 @@ def refine_curve(
     keep = (cum >= params.end_trim_m) & (cum <= cum[-1] - params.end_trim_m)
     if keep.sum() < 2 or cum[-1] < params.min_length_m:
         return None
-    return sm[keep], np.array(out_na)[keep], np.array(out_nb)[keep], float(np.median(rmss))
+    na = np.array([f[1] for f in fits])
+    nb = np.array([f[2] for f in fits])
+    return sm[keep], na[keep], nb[keep], float(np.median([f[3] for f in fits]))
+
+
+def _slab_corner(
+    full: FullRes,
+    idx: NDArray[np.int64],
+    s: FloatArray,
+    T: FloatArray,
+    in_a: NDArray[np.bool_],
+    in_b: NDArray[np.bool_],
+    params: SeamParams,
+    viewpoint: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
+    rel = full.points[idx] - s
+    slab = np.abs(rel @ T) < params.slab_half_width_m
+    res = _corner_2d(rel[slab], in_a[slab], in_b[slab], T, params, viewpoint - s)
+    if res is None:
+        return None
+    corner, n_a, n_b, rms = res
+    return s + corner, n_a, n_b, rms
+
+
+def _seen_well(
+    fit: tuple[FloatArray, FloatArray, FloatArray, float], viewpoint: FloatArray, params: SeamParams
+) -> bool:
+    """Both faces seen at less than ``max_incidence_deg``: beyond that, depth data are unreliable (and
+    the simulator's ground truth stops there too)."""
+    p, n_a, n_b, _ = fit
+    v = viewpoint - p
+    v /= max(float(np.linalg.norm(v)), 1e-12)
+    c = np.cos(np.radians(params.max_incidence_deg))
+    return bool(abs(n_a @ v) >= c and abs(n_b @ v) >= c)
+
+
+def _track_curve(
+    full: FullRes,
+    fits: list[tuple[FloatArray, FloatArray, FloatArray, float]],
+    params: SeamParams,
+    viewpoint: FloatArray,
+    *,
+    forward: bool,
+    max_steps: int = 60,
+) -> list[tuple[FloatArray, FloatArray, FloatArray, float]]:
+    """Extend a curved seam past one end while the slab fit keeps finding both faces where expected."""
+    seq = list(fits) if forward else list(reversed(fits))
+    step = params.curve_step_m
+    for _ in range(max_steps):
+        p2, p1, p0 = seq[-3][0], seq[-2][0], seq[-1][0]
+        # second-order prediction keeps the curvature
+        nxt = p0 + (p0 - p1) + ((p0 - p1) - (p1 - p2))
+        T = nxt - p0
+        norm = np.linalg.norm(T)
+        if norm < 1e-9:
+            break
+        T /= norm
+        nxt = p0 + T * step
+        idx = np.asarray(full.tree.query_ball_point(nxt, params.refine_band_m), dtype=np.int64)
+        if idx.size < 20:
+            break
+        _, n_a, n_b, rms = seq[-1]
+        q = full.points[idx]
+        da = np.abs((q - p0) @ n_a)
+        db = np.abs((q - p0) @ n_b)
+        gate = params.plane_gate_sigma * max(rms, 3e-4) + 0.001
+        in_a = (da < gate) & (da < db)
+        in_b = (db < gate) & (db <= da)
+        res = _slab_corner(full, idx, nxt, T, in_a, in_b, params, viewpoint)
+        if res is None or np.linalg.norm(res[0] - nxt) > 0.0015:
+            break
+        if not _seen_well(res, viewpoint, params):
+            break
+        # both faces must still be seen in earnest on this slab, not a few stray points
+        if min(int(in_a.sum()), int(in_b.sum())) < 15:
+            break
+        seq.append(res)
+    return seq if forward else list(reversed(seq))
 
 
 def _corner_2d(
     rel: FloatArray,
-    reg: NDArray[np.int32],
-    ra: int | tuple[int, ...],
-    rb: int | tuple[int, ...],
+    in_a: NDArray[np.bool_],
+    in_b: NDArray[np.bool_],
     T: FloatArray,
     params: SeamParams,
     to_view: FloatArray,
@@ -592,7 +690,6 @@ def _corner_2d(
     e2 = np.cross(T, e1)
     xy = np.column_stack([rel @ e1, rel @ e2])
     corner = np.zeros(2)
-    in_a, in_b = np.isin(reg, np.atleast_1d(ra)), np.isin(reg, np.atleast_1d(rb))
     exclude = 0.5 * params.refine_band_m / 3
     la = lb = None
     for _ in range(3):
