@@ -247,12 +247,37 @@ def _butt_seams(
             band_pts = organized[band].astype(np.float64)
             band_lab = label_image[band]
         pa, pb = band_pts[band_lab == i], band_pts[band_lab == j]
-        res = butt_from_surfaces(pa, pb, band_pts, params.seams, viewpoint)
+        res = butt_from_surfaces(pa, pb, _scanlines(organized, band, label_image, (i, j)), params.seams, viewpoint)
         if res is None:
             continue
         ends, n, rms, _gap = res
         nn = np.tile(n, (2, 1))
         out.append(SeamGeometry("linear", "butt", ends, nn, nn, (-1, -1), (i, j), min(len(pa), len(pb)), rms))
+    return out
+
+
+def _scanlines(
+    organized: NDArray[np.float32], band: NDArray[np.bool_], label_image: NDArray[np.int32], pair: tuple[int, int]
+) -> list[FloatArray]:
+    """Valid band points of each image row (or column, whichever crosses the joint more squarely) that
+    holds both surfaces of ``pair``, in pixel order."""
+    m_a = band & (label_image == pair[0])
+    m_b = band & (label_image == pair[1])
+    ya, xa = np.nonzero(m_a)
+    yb, xb = np.nonzero(m_b)
+    if len(ya) == 0 or len(yb) == 0:
+        return []
+    # the joint runs roughly perpendicular to the line joining the two masks' centres
+    dy, dx = yb.mean() - ya.mean(), xb.mean() - xa.mean()
+    use_rows = abs(dx) >= abs(dy)
+    grid = organized if use_rows else organized.transpose(1, 0, 2)
+    sel = band if use_rows else band.T
+    has_a = (m_a if use_rows else m_a.T).any(axis=1)
+    has_b = (m_b if use_rows else m_b.T).any(axis=1)
+    out = []
+    for r in np.flatnonzero(has_a & has_b):
+        row = grid[r][sel[r]]
+        out.append(row[np.isfinite(row[:, 2])].astype(np.float64))
     return out
 
 

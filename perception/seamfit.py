@@ -743,15 +743,21 @@ def _fit_line_2d(p: FloatArray, gate: float) -> tuple[FloatArray, FloatArray, fl
 
 
 def butt_from_surfaces(
-    pa: FloatArray, pb: FloatArray, band: FloatArray, params: SeamParams, viewpoint: FloatArray
+    pa: FloatArray,
+    pb: FloatArray,
+    scanlines: list[FloatArray],
+    params: SeamParams,
+    viewpoint: FloatArray,
 ) -> tuple[FloatArray, FloatArray, float, float] | None:
     """A butt joint between two surfaces: ``pa``, ``pb`` are the points of the two masks near where they
-    meet, ``band`` all valid points there (masks are imprecise right at a gap, so the edges are traced
-    on every point). Both surfaces must lie on one plane, and a real gap must separate them.
+    meet; ``scanlines`` are the valid points of each image row (or column) crossing the joint, in
+    order (masks are imprecise right at a gap, so the edges are traced on every point). Both surfaces
+    must lie on one plane, and a real gap must separate them.
 
-    Per 2 mm slice across the joint, the gap is the widest step between consecutive top-surface samples
-    near the joint. A plate's edge is its side wall where the camera sees that wall inside the gap,
-    otherwise its last sample plus half the sample spacing (the mean shortfall of the last pixel).
+    On each scanline the gap is the widest step between consecutive top-surface samples near the joint
+    (one scanline, one last sample per plate: no maximum over noisy rows, which would be biased).
+    A plate's edge is its side wall where the camera sees that wall inside the gap, otherwise its
+    last sample plus half the sample spacing (the mean shortfall of the last pixel).
     The seam is the mid-line of the two edge lines. Returns (end points (2, 3), plane normal, RMS,
     gap width), or None when it is not a butt joint.
     """
@@ -782,32 +788,36 @@ def butt_from_surfaces(
     across = np.cross(n, d)
     if (qb.mean(axis=0) - qa.mean(axis=0)) @ across < 0:
         across = -across
-    rel = band - mid
-    t, x, h = rel @ d, rel @ across, (band - c) @ n
-    near = np.abs(x) < 0.006
-    t, x, h = t[near], x[near], h[near]
     sigma = max(rms, 1e-4)
-    top = np.abs(h) < 2.5 * sigma
-    below = h < -3.0 * sigma
-    bins = np.floor(t / 0.002).astype(np.int64)
     rows = []
-    for b in np.unique(bins):
-        sel = bins == b
-        xt = np.sort(x[sel & top])
-        if len(xt) < 6:
+    for line_pts in scanlines:
+        rel = line_pts - mid
+        x, h = rel @ across, (line_pts - c) @ n
+        near = np.abs(x) < 0.006
+        if near.sum() < 6:
             continue
+        x, h, tt = x[near], h[near], rel[near] @ d
+        top = np.abs(h) < 2.5 * sigma
+        xa_top, xb_top = x[top & (x < 0.002)], x[top & (x > -0.002)]
+        if len(xa_top) < 3 or len(xb_top) < 3:
+            continue
+        xt = np.sort(x[top])
         steps = np.diff(xt)
         k = int(np.argmax(steps))
         spacing = float(np.median(steps))
         if steps[k] < 2.5 * max(spacing, 1e-5):
-            continue  # no gap in this slice
+            continue  # no gap on this scanline
         xa_last, xb_first = xt[k], xt[k + 1]
-        walls = x[sel & below & (x > xa_last - 0.0005) & (x < xb_first + 0.0005)]
+        below = h < -3.0 * sigma
+        walls = x[below & (x > xa_last - 0.0005) & (x < xb_first + 0.0005)]
         wall_a = walls[np.abs(walls - xa_last) < 0.0005]
         wall_b = walls[np.abs(walls - xb_first) < 0.0005]
-        edge_a = float(np.median(wall_a)) if len(wall_a) >= 2 else xa_last + 0.5 * spacing
-        edge_b = float(np.median(wall_b)) if len(wall_b) >= 2 else xb_first - 0.5 * spacing
-        rows.append((float(np.mean(t[sel])), edge_a, edge_b))
+        # the last sample on a plate falls short of its edge by half the local spacing on average
+        sp_a = float(xt[k] - xt[k - 1]) if k >= 1 else spacing
+        sp_b = float(xt[k + 2] - xt[k + 1]) if k + 2 < len(xt) else spacing
+        edge_a = float(np.median(wall_a)) if len(wall_a) >= 2 else xa_last + 0.5 * sp_a
+        edge_b = float(np.median(wall_b)) if len(wall_b) >= 2 else xb_first - 0.5 * sp_b
+        rows.append((float(np.mean(tt)), edge_a, edge_b))
     if len(rows) < 5:
         return None
     arr = np.array(rows)
