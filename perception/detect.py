@@ -667,6 +667,9 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None) -> Detec
     # the viewpoint: clouds in a robot or world frame are not seen from their origin; use a point
     # above the cloud's centroid along the axis of least spread, on the side of most normals
     viewpoint = _guess_viewpoint(cloud.points)
+    if p.z_range_m == DetectParams().z_range_m:
+        # the default working range is for camera-frame depth; a cloud may be in a robot frame
+        p = replace(p, z_range_m=(-np.inf, np.inf))
     geoms = _regions_to_seams(cloud.points, None, p, log, viewpoint=viewpoint)
     if not geoms:
         raise NoSeamFound(f"{log.counts.get('candidates', 0)} junction(s) examined, none is a concave seam")
@@ -693,7 +696,7 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None) -> Detec
 
 def _guess_viewpoint(points: FloatArray) -> FloatArray:
     c = points.mean(axis=0)
-    if np.linalg.norm(c) > 0.05 and abs(c[2]) > 0.05 and np.all(np.abs(c[:2]) < 2 * abs(c[2])):
+    if np.linalg.norm(c) > 0.05 and c[2] > 0.05 and np.all(np.abs(c[:2]) < 0.6 * c[2]):
         # looks like a camera-frame cloud (in front of the origin): the camera is the viewpoint
         return np.zeros(3)
     _, _, vt = np.linalg.svd(points - c, full_matrices=False)

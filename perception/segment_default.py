@@ -225,8 +225,22 @@ def auto_prompts(
                 best = float(-(n @ c))
                 support = (c, n)
     min_area = ap.min_area_fraction * h * w
+    big = np.flatnonzero(areas >= min_area)
+    if support is not None:
+        # a table is only a table if something stands on it: when no large patch rises in front of
+        # the plane, the workpiece fills the view and that plane is one of its surfaces
+        c, n = support
+        in_front = False
+        for cid in big:
+            pts = patches.points[comp == cid].astype(np.float64)
+            pts = pts[np.isfinite(pts).all(axis=1)]
+            if len(pts) and np.median((pts - c) @ n) >= ap.support_plane_tol_m:
+                in_front = True
+                break
+        if not in_front:
+            support = None
     out: list[tuple[float, float, float]] = []
-    for cid in np.flatnonzero(areas >= min_area):
+    for cid in big:
         mask = comp == cid
         pts = patches.points[mask].astype(np.float64)
         pts = pts[np.isfinite(pts).all(axis=1)]
