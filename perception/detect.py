@@ -281,6 +281,41 @@ def _scanlines(
     return out
 
 
+def support_plane(
+    organized: NDArray[np.float32], labels: NDArray[np.int32], *, inlier_m: float = 0.003, seed: int = 0
+) -> tuple[FloatArray, FloatArray] | None:
+    """The table or fixture plate the workpiece stands on: the dominant plane of the background pixels
+    (RANSAC on a sample), when it holds at least a third of them. (centroid, unit normal) or None."""
+    bg = organized[(labels < 0) & np.isfinite(organized[..., 2])].astype(np.float64)
+    if len(bg) < 500:
+        return None
+    rng = np.random.default_rng(seed)
+    sample = bg[rng.choice(len(bg), min(3000, len(bg)), replace=False)]
+    best_n, best = 0, None
+    for _ in range(60):
+        a, b, c = sample[rng.choice(len(sample), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        norm = np.linalg.norm(n)
+        if norm < 1e-9:
+            continue
+        n /= norm
+        inl = np.abs((sample - a) @ n) < inlier_m
+        if inl.sum() > best_n:
+            best_n, best = int(inl.sum()), inl
+    if best is None or best_n < len(sample) / 3:
+        return None
+    c0, n0, _ = fit_plane(sample[best])
+    return c0, n0
+
+
+def _on_support(g: SeamGeometry, support: tuple[FloatArray, FloatArray], *, tol_m: float = 0.004) -> bool:
+    """A seam one of whose faces is the support plane (a plate edge standing on the table)."""
+    c, n = support
+    near = np.abs((g.points - c) @ n).max() < tol_m
+    parallel = max(abs(float(g.normals_a.mean(axis=0) @ n)), abs(float(g.normals_b.mean(axis=0) @ n)))
+    return bool(near and parallel > np.cos(np.radians(10.0)))
+
+
 def _dedupe(geoms: list[SeamGeometry], *, max_dist_m: float = 0.001) -> list[SeamGeometry]:
     """Drop a seam that lies on another one (two candidates tracked onto the same junction); of two
     overlapping copies the longer is kept, extended to cover both."""
@@ -618,6 +653,10 @@ def detect(
         geoms += _butt_seams(
             organized, band, coarse.masks.labels, coarse.pairs, log.voxel_planes, p, viewpoint=np.zeros(3)
         )
+    with log.step("support"):
+        table = support_plane(organized, coarse.masks.labels)
+        if table is not None:
+            geoms = [g for g in geoms if not _on_support(g, table)]
     t_fine = time.perf_counter() - t1
     if not geoms:
         raise NoSeamFound(

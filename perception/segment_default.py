@@ -42,7 +42,8 @@ class GraphSegmenterParams:
 
 
 def _factor(width: int, work_width_px: int) -> int:
-    return max(1, round(width / work_width_px))
+    """Pixel step so that the work image is at least ``work_width_px`` wide (960 px -> step 1, not 2)."""
+    return max(1, width // work_width_px)
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ GT_STEP_M = 0.0005
 GT_FACE_OFFSET_M = 0.003  # a seam is seen when its centre and 3 mm into both faces are seen
 GT_MIN_RUN_M = 0.015
 MAX_INCIDENCE_DEG = 78.0
+STRUCTURED_DROPOUT_DEG = 78.0
 PROMPT_MIN_PIXELS = 400
 
 # Robot base placement used by --with-pose: the scene's world frame expressed in the robot base frame,
@@ -248,7 +249,7 @@ def _noisy_depth(depth: FloatArray, cos_inc: FloatArray, noise: NoiseModel, rng:
         p_fly = 0.6
     else:
         sigma = 0.0001 * (z / 0.5) ** 2 / np.maximum(cos_inc, 0.5)
-        p_drop = (inc_deg > MAX_INCIDENCE_DEG).astype(float) + 0.0005
+        p_drop = (inc_deg > STRUCTURED_DROPOUT_DEG).astype(float) + 0.0005
         p_fly = 0.2
     z = z + rng.standard_normal(z.shape) * np.where(valid, sigma, 0.0)
     # flying pixels: a mix of foreground and background depth at depth discontinuities
@@ -423,9 +424,11 @@ def render(
         mask = (part_idx == p) & (face_idx == f)
         if mask.sum() < PROMPT_MIN_PIXELS:
             continue
-        usable = mask & np.isfinite(z)
-        dist = cv2.distanceTransform(np.pad(usable, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
-        if dist.max() < 3.0:
+        # the most interior pixel of the face (as an operator would click), among those with depth:
+        # dropouts at grazing angles must not hide a face whose seam is in the ground truth
+        dist = cv2.distanceTransform(np.pad(mask, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
+        dist[~np.isfinite(z)] = 0.0
+        if dist.max() < 2.0:
             continue
         v, u = np.unravel_index(int(np.argmax(dist)), dist.shape)
         labels[mask] = len(surfaces)
