@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cell.commands.bench",
     "cell.commands.sim",
     "cell.commands.devices",
+    "cell.commands.calibrate",
 )
 
 EXIT_OK = 0

@@ -6,6 +6,13 @@ Layout (see examples/sim-cell.toml)::
     [track]      kind = "modbus" | "fake" | "none", host, port, unit_id, counts_per_m, soft limits, profile
     [camera]     kind = "oakd" | "fake", resolution, fps, timeout; device_id (oakd); scene, noise, playback (fake)
     [hand_eye]   path = "hand_eye.json"  or  X_tool_camera = [[...], [...], [...], [...]]   (optional)
+      [hand_eye.calibration]   how `weldcell calibrate hand-eye` finds it: board, nominal poses, workspace (optional)
+    [home]       the robot's home pose and the track's home position (optional)
+    [fixture]    where the workpiece fixture sits (world frame), for jobs whose poses are fixture-relative (optional)
+    [safety]     workspace box, reach, speed, jump and torch-up limits (needed by `weldcell run` / `serve`)
+    [welding]    default welding parameters (a job's [welding] overrides them)
+    [detection]  detector parameters (voxel, crop...) and how seams of several captures merge
+    [daemon]     `weldcell serve`: bind host (default 127.0.0.1), port, token, journal and status image paths
 
 Every mistake is a :class:`cell.errors.ConfigError` whose message names the file, the key (``robot.port``) and
 the problem; a file with several mistakes lists them all. Types are strict (TOML is typed: ``port = "502"``
@@ -45,6 +52,20 @@ RobotKind = Literal["ur", "fanuc", "fake-ur", "fake-fanuc"]
 TrackKind = Literal["modbus", "fake", "none"]
 CameraKind = Literal["oakd", "fake"]
 NoiseModel = Literal["none", "stereo", "structured"]
+HandEyeModeName = Literal["eye_in_hand", "eye_to_hand"]
+
+CHARUCO_SCENE = "charuco"
+"""The fake camera's scene that shows the calibration board of ``[hand_eye.calibration.board]``."""
+
+
+def _check_matrix(value: list[list[float]] | None, name: str) -> None:
+    """ValueError (for pydantic) unless ``value`` is None or a proper 4x4 rigid transform."""
+    if value is None:
+        return
+    try:
+        check_X(np.asarray(value, dtype=np.float64), name=name)
+    except (TransformError, ValueError) as err:
+        raise ValueError(str(err)) from err
 
 
 def is_loopback(host: str) -> bool:
@@ -169,7 +190,12 @@ class CameraConfig(Section):
     ``fake``: ``scene`` (a simulator scene name), ``noise``, ``seed``, ``X_base_world`` (4x4, metres: where the
     scene's world frame sits in the robot base frame with the track at 0; absent = the simulator's default, in
     front of the fake FANUC's start pose); or ``playback``: capture folders (or folders of capture folders)
-    played back in a cycle instead of rendering.
+    played back in a cycle instead of rendering. ``X_tool_camera`` (4x4, metres): the simulated camera's true
+    mount on the tool, which a hand-eye calibration should find (absent = the simulator's default; the cell's
+    ``[hand_eye]`` is what the cell *believes*, a separate thing on purpose).
+    ``scene = "charuco"`` shows the calibration board of ``[hand_eye.calibration.board]`` instead of a weldment,
+    lying at ``X_base_board`` (4x4, metres, base frame with the track at 0; required), imaged with lens blur
+    ``blur_sigma_px`` (default 0.6) and sensor noise ``image_noise`` (gray levels of 255, default 2).
     """
 
     kind: CameraKind
@@ -185,6 +211,10 @@ class CameraConfig(Section):
     seed: int = 0
     playback: list[str] = Field(default_factory=list)
     X_base_world: list[list[float]] | None = None
+    X_tool_camera: list[list[float]] | None = None
+    X_base_board: list[list[float]] | None = None
+    blur_sigma_px: float | None = Field(default=None, ge=0)
+    image_noise: float | None = Field(default=None, ge=0)
 
     @field_validator("resolution")
     @classmethod
@@ -205,6 +235,17 @@ class CameraConfig(Section):
                 check_X(np.asarray(self.X_base_world, dtype=np.float64), name="X_base_world")
             except (TransformError, ValueError) as err:
                 raise ValueError(str(err)) from err
+        simulated = ("X_tool_camera", "X_base_board", "blur_sigma_px", "image_noise")
+        if self.kind == "oakd" and any(getattr(self, key) is not None for key in simulated):
+            raise ValueError(f"{', '.join(simulated)} describe the simulator: they are for kind = 'fake'")
+        _check_matrix(self.X_tool_camera, "X_tool_camera")
+        _check_matrix(self.X_base_board, "X_base_board")
+        if self.kind == "fake":
+            if self.scene == CHARUCO_SCENE and self.X_base_board is None:
+                raise ValueError(f"scene = {CHARUCO_SCENE!r} needs X_base_board, where the board lies (base frame)")
+            board_keys = [k for k in ("X_base_board", "blur_sigma_px", "image_noise") if getattr(self, k) is not None]
+            if self.scene != CHARUCO_SCENE and board_keys:
+                raise ValueError(f"{', '.join(board_keys)} are for scene = {CHARUCO_SCENE!r}")
         return self
 
     @property
@@ -212,12 +253,152 @@ class CameraConfig(Section):
         return (self.resolution[0], self.resolution[1])
 
 
+class BoardConfig(Section):
+    """``[hand_eye.calibration.board]``: the printed ChArUco board (:class:`calibration.board.CharucoBoardSpec`).
+
+    ``squares_x`` × ``squares_y`` squares of ``square_length_m`` with markers of ``marker_length_m`` (measure the
+    print: a wrong size scales every translation), ``dictionary`` a ``cv2.aruco.DICT_*`` name.
+    """
+
+    squares_x: int = Field(ge=2)
+    squares_y: int = Field(ge=2)
+    square_length_m: float = Field(gt=0)
+    marker_length_m: float = Field(gt=0)
+    dictionary: str = "DICT_5X5_100"
+    legacy_pattern: bool = False
+
+    @model_validator(mode="after")
+    def _check_board(self) -> BoardConfig:
+        from calibration.errors import CalibrationError
+
+        try:
+            self.spec()
+        except CalibrationError as err:
+            raise ValueError(str(err)) from err
+        return self
+
+    def spec(self) -> Any:
+        """The :class:`calibration.board.CharucoBoardSpec` of this table."""
+        from calibration.board import CharucoBoardSpec
+
+        return CharucoBoardSpec(
+            squares_x=self.squares_x,
+            squares_y=self.squares_y,
+            square_length_m=self.square_length_m,
+            marker_length_m=self.marker_length_m,
+            dictionary=self.dictionary,
+            legacy_pattern=self.legacy_pattern,
+        )
+
+
+class WorkspaceConfig(Section):
+    """``[hand_eye.calibration.workspace]``: where the tool frame origin may go while calibrating (base frame,
+    metres): within ``reach_radius_m`` of ``reach_center_base`` (e.g. the shoulder), beyond ``min_radius_m``, and
+    inside the box ``box_min_base`` .. ``box_max_base`` when given (keep its floor above the table and fixtures)."""
+
+    reach_center_base: list[float] = Field(min_length=3, max_length=3)
+    reach_radius_m: float = Field(gt=0)
+    min_radius_m: float = Field(default=0.0, ge=0)
+    box_min_base: list[float] | None = Field(default=None, min_length=3, max_length=3)
+    box_max_base: list[float] | None = Field(default=None, min_length=3, max_length=3)
+
+    @model_validator(mode="after")
+    def _check_workspace(self) -> WorkspaceConfig:
+        from calibration.errors import CalibrationError
+
+        try:
+            self.workspace()
+        except CalibrationError as err:
+            raise ValueError(str(err)) from err
+        return self
+
+    def workspace(self) -> Any:
+        """The :class:`calibration.planner.Workspace` of this table."""
+        from calibration.planner import Workspace
+
+        def xyz(v: list[float] | None) -> tuple[float, float, float] | None:
+            return None if v is None else (float(v[0]), float(v[1]), float(v[2]))
+
+        center = xyz(self.reach_center_base)
+        assert center is not None
+        return Workspace(
+            reach_center_base=center,
+            reach_radius_m=self.reach_radius_m,
+            min_radius_m=self.min_radius_m,
+            box_min_base=xyz(self.box_min_base),
+            box_max_base=xyz(self.box_max_base),
+        )
+
+
+class CalibrationConfig(Section):
+    """``[hand_eye.calibration]``: how ``weldcell calibrate hand-eye`` calibrates (see docs/calibration.md).
+
+    ``mode``: ``"eye_in_hand"`` (camera on the tool, board fixed; default) or ``"eye_to_hand"`` (camera fixed,
+    board on the tool). Nominal (CAD) poses the plan aims with, metres; a few mm and degrees off is fine:
+    eye-in-hand ``X_base_board`` (required) and ``X_tool_camera`` (default: the ``[hand_eye]`` result);
+    eye-to-hand ``X_base_camera`` and ``X_tool_board`` (both required). ``poses``: views to solve from (one more is
+    taken to verify the result); ``seed``: of the pose plan. The views sit ``standoff_m`` ± ``standoff_jitter_m``
+    from the board centre, tilted ``min_tilt_deg``..``max_tilt_deg`` from its normal and rolled up to
+    ± ``max_roll_deg``. ``speed_m_s``/``accel_m_s2``: tool motion between views (default: ``[robot]``'s);
+    ``settle_s``: wait after each move before the capture. ``min_corners``: a view with fewer board corners is
+    skipped; ``min_views``: fewer usable views stop the calibration.
+    """
+
+    mode: HandEyeModeName = "eye_in_hand"
+    board: BoardConfig
+    workspace: WorkspaceConfig
+    X_base_board: list[list[float]] | None = None
+    X_tool_camera: list[list[float]] | None = None
+    X_base_camera: list[list[float]] | None = None
+    X_tool_board: list[list[float]] | None = None
+    poses: int = Field(default=12, ge=3, le=200)
+    seed: int = 0
+    standoff_m: float = Field(default=0.40, gt=0)
+    standoff_jitter_m: float = Field(default=0.05, ge=0)
+    min_tilt_deg: float = Field(default=10.0, ge=0)
+    max_tilt_deg: float = Field(default=35.0, ge=0)
+    max_roll_deg: float = Field(default=40.0, ge=0)
+    speed_m_s: float | None = Field(default=None, gt=0)
+    accel_m_s2: float | None = Field(default=None, gt=0)
+    settle_s: float = Field(default=0.2, ge=0)
+    min_corners: int = Field(default=12, ge=4)
+    min_views: int = Field(default=6, ge=3)
+
+    @model_validator(mode="after")
+    def _check_calibration(self) -> CalibrationConfig:
+        for name in ("X_base_board", "X_tool_camera", "X_base_camera", "X_tool_board"):
+            _check_matrix(getattr(self, name), name)
+        needed = ("X_base_board",) if self.mode == "eye_in_hand" else ("X_base_camera", "X_tool_board")
+        missing = [name for name in needed if getattr(self, name) is None]
+        if missing:
+            raise ValueError(f"mode = {self.mode!r} needs the nominal {' and '.join(missing)}")
+        if self.min_views > self.poses:
+            raise ValueError(f"poses = {self.poses} is below min_views = {self.min_views}")
+        from calibration.errors import CalibrationError
+        from calibration.planner import PlanParams
+
+        try:
+            PlanParams(
+                n_poses=self.poses,
+                standoff_m=self.standoff_m,
+                standoff_jitter_m=self.standoff_jitter_m,
+                min_tilt_deg=self.min_tilt_deg,
+                max_tilt_deg=self.max_tilt_deg,
+                max_roll_deg=self.max_roll_deg,
+            )
+        except CalibrationError as err:
+            raise ValueError(str(err)) from err
+        return self
+
+
 class HandEyeConfig(Section):
     """``[hand_eye]``: the camera pose on the tool, ``X_tool_camera`` (4x4, metres), given inline or as
-    ``path`` to a JSON file holding an object with an ``"X_tool_camera"`` key (as in a capture's pose.json)."""
+    ``path`` to a JSON file holding an object with an ``"X_tool_camera"`` key (as in a capture's pose.json, or as
+    ``weldcell calibrate hand-eye`` writes it). ``calibration``: how that command calibrates it (optional)."""
 
     path: str | None = Field(default=None, min_length=1)
     X_tool_camera: list[list[float]] | None = None
+    calibration: CalibrationConfig | None = None
 
     @model_validator(mode="after")
     def _check_one(self) -> HandEyeConfig:
@@ -231,6 +412,164 @@ class HandEyeConfig(Section):
         return self
 
 
+class PoseConfig(Section):
+    """A tool pose ``X_base_tool`` in a file: ``xyz_m`` (metres, base frame) with ``rotvec_rad`` (a rotation vector,
+    radians, as UR pose vectors), or ``xyzwpr_mm_deg`` (FANUC X, Y, Z in mm and W, P, R in degrees, fixed-axis
+    x-y-z). Converted to SI once, in :meth:`X_base_tool`."""
+
+    xyz_m: list[float] | None = Field(default=None, min_length=3, max_length=3)
+    rotvec_rad: list[float] | None = Field(default=None, min_length=3, max_length=3)
+    xyzwpr_mm_deg: list[float] | None = Field(default=None, min_length=6, max_length=6)
+
+    @model_validator(mode="after")
+    def _check_pose(self) -> PoseConfig:
+        vector = self.xyz_m is not None or self.rotvec_rad is not None
+        if vector == (self.xyzwpr_mm_deg is not None):
+            raise ValueError("give either xyz_m with rotvec_rad, or xyzwpr_mm_deg")
+        if vector and (self.xyz_m is None or self.rotvec_rad is None):
+            raise ValueError("xyz_m and rotvec_rad go together")
+        values = [*(self.xyz_m or []), *(self.rotvec_rad or []), *(self.xyzwpr_mm_deg or [])]
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"pose values must be finite numbers, got {values}")
+        return self
+
+    def X_base_tool(self) -> np.ndarray:
+        """(4, 4) the pose, metres."""
+        from perception.transforms import X_from_ur_pose, X_from_xyzwpr_mm_deg
+
+        if self.xyzwpr_mm_deg is not None:
+            return X_from_xyzwpr_mm_deg(np.asarray(self.xyzwpr_mm_deg, dtype=np.float64))
+        assert self.xyz_m is not None and self.rotvec_rad is not None
+        return X_from_ur_pose(np.asarray([*self.xyz_m, *self.rotvec_rad], dtype=np.float64))
+
+
+class FixtureConfig(Section):
+    """``[fixture]``: where the workpiece fixture sits, ``X_world_fixture`` (4x4, metres, world frame = base frame with
+    the track at 0). A job whose poses are given with ``frame = "fixture"`` runs on every cell that states this."""
+
+    X_world_fixture: list[list[float]]
+
+    @model_validator(mode="after")
+    def _check_fixture(self) -> FixtureConfig:
+        _check_matrix(self.X_world_fixture, "X_world_fixture")
+        return self
+
+
+class HomeConfig(Section):
+    """``[home]``: where a job starts and ends. ``pose``: the robot's home tool pose (absent: the robot is not moved
+    when homing, only checked); ``track_position_m``: the carriage's home position (metres)."""
+
+    pose: PoseConfig | None = None
+    track_position_m: float = 0.0
+
+
+class SafetyConfig(Section):
+    """``[safety]``: the limits every planned path is validated against (:class:`cell.safety.SafetyLimits`).
+
+    ``workspace_min_world``/``workspace_max_world``: the box the TCP stays in (metres, world frame = base frame with
+    the track at 0). ``reach_radius_m`` around ``reach_centre_base`` (base frame), ``reach_preferred_m`` where seams
+    are best welded. ``track_axis_base``: the unit direction the carriage moves the base. Speeds m/s, acceleration
+    m/s², blend and step in metres; ``max_step_deg`` (rotation between consecutive non-air poses) and
+    ``max_tilt_deg`` (torch-up limit: the torch axis from straight down) in degrees, as operators read them.
+    """
+
+    workspace_min_world: list[float] = Field(min_length=3, max_length=3)
+    workspace_max_world: list[float] = Field(min_length=3, max_length=3)
+    reach_radius_m: float = Field(gt=0)
+    reach_preferred_m: float = Field(ge=0)
+    reach_centre_base: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    track_axis_base: list[float] = Field(default_factory=lambda: [0.0, 1.0, 0.0], min_length=3, max_length=3)
+    max_speed_m_s: float = Field(default=0.25, gt=0)
+    max_accel_m_s2: float = Field(default=1.2, gt=0)
+    max_blend_m: float = Field(default=0.01, ge=0)
+    max_step_m: float = Field(default=0.1, gt=0)
+    max_step_deg: float = Field(default=20.0, gt=0, le=180)
+    max_tilt_deg: float = Field(default=60.0, gt=0, le=180)
+
+    @model_validator(mode="after")
+    def _check_safety(self) -> SafetyConfig:
+        if not all(lo < hi for lo, hi in zip(self.workspace_min_world, self.workspace_max_world, strict=True)):
+            raise ValueError(
+                f"workspace_min_world {self.workspace_min_world} must lie below workspace_max_world "
+                f"{self.workspace_max_world} on every axis"
+            )
+        if self.reach_preferred_m > self.reach_radius_m:
+            raise ValueError(f"reach_preferred_m={self.reach_preferred_m} exceeds reach_radius_m={self.reach_radius_m}")
+        if abs(float(np.linalg.norm(self.track_axis_base)) - 1.0) > 1e-6:
+            raise ValueError(f"track_axis_base must be a unit vector, got {self.track_axis_base}")
+        return self
+
+
+class WeldingConfig(Section):
+    """``[welding]`` (cell defaults) and a job's ``[welding]`` (overrides): :class:`cell.planning.WeldParams` in
+    file units. Speeds m/s, distances m, times s; ``work_angle_deg``/``travel_angle_deg`` in degrees (converted to
+    radians once, in :func:`cell.job.weld_params`). ``arc_output``: the robot's digital output that switches the
+    arc (UR standard output n, FANUC ``DO[n + 1]``). A key left out keeps the cell's (then the planner's) default.
+    """
+
+    travel_speed_m_s: float | None = Field(default=None, gt=0)
+    approach_speed_m_s: float | None = Field(default=None, gt=0)
+    air_speed_m_s: float | None = Field(default=None, gt=0)
+    accel_m_s2: float | None = Field(default=None, gt=0)
+    blend_m: float | None = Field(default=None, ge=0)
+    work_angle_deg: float | None = Field(default=None, gt=-90, lt=90)
+    travel_angle_deg: float | None = Field(default=None, gt=-90, lt=90)
+    stickout_m: float | None = Field(default=None, ge=0)
+    approach_m: float | None = Field(default=None, ge=0)
+    retract_m: float | None = Field(default=None, ge=0)
+    arc_output: int | None = Field(default=None, ge=0)
+    weld_job: int | None = Field(default=None, ge=0)
+    voltage_v: float | None = Field(default=None, gt=0)
+    wire_feed_m_s: float | None = Field(default=None, gt=0)
+    arc_on_dwell_s: float | None = Field(default=None, ge=0)
+    arc_off_dwell_s: float | None = Field(default=None, ge=0)
+
+
+class DetectionConfig(Section):
+    """``[detection]``: :class:`perception.detect.DetectParams` the cell uses, and how seams seen in several captures
+    are merged. ``voxel_m``: voxel grid; ``crop``: keep only the seam bands; ``roi_band_m``: their half-width;
+    ``z_range_m``: [near, far] pass-through (camera z, metres); ``method``: ``"refined"`` or ``"paper"``;
+    ``merge_tol_m``/``merge_min_overlap_m``: two seams closer than this over at least that length are one."""
+
+    voxel_m: float = Field(default=0.003, gt=0, le=0.05)
+    crop: bool = True
+    roi_band_m: float = Field(default=0.010, gt=0)
+    z_range_m: list[float] = Field(default_factory=lambda: [0.1, 3.0], min_length=2, max_length=2)
+    method: Literal["refined", "paper"] = "refined"
+    merge_tol_m: float = Field(default=0.003, gt=0)
+    merge_min_overlap_m: float = Field(default=0.02, gt=0)
+
+    @model_validator(mode="after")
+    def _check_range(self) -> DetectionConfig:
+        near, far = self.z_range_m
+        if not 0 <= near < far:
+            raise ValueError(f"z_range_m must be [near, far] with 0 <= near < far, got {self.z_range_m}")
+        return self
+
+
+class DaemonConfig(Section):
+    """``[daemon]`` (``weldcell serve``): bind ``host`` (default 127.0.0.1) and ``port``; ``token``: the bearer token
+    every request must carry (required when ``host`` is not a loopback address; at least 16 characters);
+    ``journal``: the SQLite journal; ``status_image``: where the last capture overlay is written (PNG). Relative
+    paths are relative to the config file's folder."""
+
+    host: str = Field(default="127.0.0.1", min_length=1)
+    port: int = Field(default=8765, ge=0, le=65535)
+    token: str | None = Field(default=None, min_length=16)
+    journal: str = Field(default="weldcell-journal.sqlite3", min_length=1)
+    status_image: str = Field(default="weldcell-status.png", min_length=1)
+    recent_jobs: int = Field(default=20, ge=1, le=1000)
+
+    @model_validator(mode="after")
+    def _check_token(self) -> DaemonConfig:
+        if not is_loopback(self.host) and self.token is None:
+            raise ValueError(
+                f"host = {self.host!r} is not a loopback address: set 'token' (a bearer token of 16+ characters) "
+                "so that only clients that know it can start jobs"
+            )
+        return self
+
+
 class CellConfig(Section):
     """The whole file. Read it with :func:`load_config`; ``source``/``base_dir`` say where it came from."""
 
@@ -238,6 +577,12 @@ class CellConfig(Section):
     track: TrackConfig = Field(default_factory=lambda: TrackConfig(kind="none"))
     camera: CameraConfig
     hand_eye: HandEyeConfig | None = None
+    home: HomeConfig = Field(default_factory=HomeConfig)
+    fixture: FixtureConfig | None = None
+    safety: SafetyConfig | None = None
+    welding: WeldingConfig = Field(default_factory=WeldingConfig)
+    detection: DetectionConfig = Field(default_factory=DetectionConfig)
+    daemon: DaemonConfig = Field(default_factory=DaemonConfig)
 
     _source: Path | None = PrivateAttr(default=None)
 

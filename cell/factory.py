@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from cell.config import CellConfig
+from cell.config import CHARUCO_SCENE, CellConfig
 from cell.errors import ConfigError
 from drivers.errors import DriverError
 from drivers.protocols import Camera, Robot, Track
@@ -84,7 +84,8 @@ class Simulators:
             what = (
                 f"playback of {len(cc.playback)} folder entr{'y' if len(cc.playback) == 1 else 'ies'}"
                 if cc.playback
-                else f"scene {cc.scene}, {cc.size[0]}x{cc.size[1]}, noise {cc.noise}"
+                else f"scene {cc.scene}, {cc.size[0]}x{cc.size[1]}, "
+                + ("a calibration board" if cc.scene == CHARUCO_SCENE else f"noise {cc.noise}")
             )
             lines.append(
                 DeviceLine("camera", cc.kind, "in-process", f"{what}; each client renders from the live robot pose")
@@ -290,16 +291,33 @@ def build_camera(config: CellConfig, *, robot: Robot, track: Track | None) -> Ca
             max_depth_m=cc.max_depth_m,
             min_valid_depth_share=cc.min_valid_depth_share,
         )
-    from sim_fakes.fake_camera import FakeCamera
+    from sim_fakes.fake_camera import BoardTarget, FakeCamera
     from sim_fakes.scenes import SCENES
 
-    if cc.scene not in SCENES:
+    if cc.scene not in SCENES and cc.scene != CHARUCO_SCENE:
         raise ConfigError(
-            f"{config.where('camera.scene')}: unknown scene {cc.scene!r}; choose one of: {', '.join(SCENES)}"
+            f"{config.where('camera.scene')}: unknown scene {cc.scene!r}; choose one of: "
+            f"{', '.join([*SCENES, CHARUCO_SCENE])}"
         )
     placement: dict[str, Any] = {}
     if cc.X_base_world is not None:
         placement["X_base_world"] = np.asarray(cc.X_base_world, dtype=np.float64)
+    if cc.X_tool_camera is not None:
+        placement["X_tool_camera"] = np.asarray(cc.X_tool_camera, dtype=np.float64)
+    if cc.scene == CHARUCO_SCENE:
+        calibration = config.hand_eye.calibration if config.hand_eye is not None else None
+        if calibration is None:
+            raise ConfigError(
+                f"{config.where('camera.scene')}: scene {CHARUCO_SCENE!r} shows the board of "
+                "[hand_eye.calibration.board]; add that table"
+            )
+        assert cc.X_base_board is not None  # the config refuses the charuco scene without it
+        imaging: dict[str, Any] = {"blur_sigma_px": cc.blur_sigma_px, "noise_gray": cc.image_noise}
+        placement["board"] = BoardTarget(
+            board=calibration.board.spec(),
+            X_base_board=np.asarray(cc.X_base_board, dtype=np.float64),
+            **{key: value for key, value in imaging.items() if value is not None},
+        )
     return FakeCamera(
         cc.scene,
         **placement,

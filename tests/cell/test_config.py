@@ -84,8 +84,11 @@ def test_unknown_key_names_file_key_and_allowed_keys(tmp_path: Path) -> None:
 
 
 def test_unknown_section_is_refused(tmp_path: Path) -> None:
-    path = write(tmp_path, MINIMAL + "\n[welding]\ncurrent_a = 180\n")
-    assert error_of(path) == f"{path}: welding: unknown key (allowed: robot, track, camera, hand_eye)"
+    path = write(tmp_path, MINIMAL + "\n[welder]\ncurrent_a = 180\n")
+    assert error_of(path) == (
+        f"{path}: welder: unknown key (allowed: robot, track, camera, hand_eye, home, fixture, safety, welding, "
+        "detection, daemon)"
+    )
 
 
 def test_wrong_type_names_file_key_and_value(tmp_path: Path) -> None:
