@@ -29,12 +29,13 @@ class SeamParams:
     max_gap_m: float = 0.005  # widest butt-joint gap
     min_gap_m: float = 0.0003  # a narrower "gap" is one surface split by the segmenter, not a joint
     butt_max_rms_m: float = 0.0015
+    butt_min_gap_share: float = 0.5
     curved_sagitta_m: float = 0.0025  # a fitted line this far from the binned edge path means "curved"
     min_length_m: float = 0.012
     end_trim_m: float = 0.002  # keep path ends this far inside the measured extent
     refine: bool = True
     support_bin_m: float = 0.002
-    max_hole_m: float = 0.008  # a longer stretch without both faces seen splits the seam (occluder)
+    max_hole_m: float = 0.004  # a longer stretch without both faces seen splits the seam (occluder)
     refine_exclude_m: float = 0.0012  # ignore points this close to the junction (mixed, noisy)
     refine_band_m: float = 0.010
     plane_gate_sigma: float = 3.0
@@ -423,6 +424,18 @@ def refine_linear(
         if direction @ d < 0:
             direction = -direction
     ca, na, rms_a, cb, nb, rms_b = fit
+    # a fillet's faces each lie on the open side of the other's plane; on a convex edge they lie
+    # behind it. Refinement may have settled on a different junction than the one classified, so check
+    pts = full.points[idx]
+    rel = pts - center
+    dist_line = np.linalg.norm(rel - np.outer(rel @ direction, direction), axis=1)
+    ring = (dist_line > exclude) & (dist_line < R)
+    if (ring & in_a).sum() < 10 or (ring & in_b).sum() < 10:
+        return None
+    side_a = float(np.median(rel[ring & in_a] @ nb))
+    side_b = float(np.median(rel[ring & in_b] @ na))
+    if side_a <= 0.5 * exclude or side_b <= 0.5 * exclude:
+        return None
     segments = []
     for lo, hi in runs:
         lo, hi = lo + params.end_trim_m, hi - params.end_trim_m
@@ -820,6 +833,9 @@ def butt_from_surfaces(
         rows.append((float(np.mean(tt)), edge_a, edge_b))
     if len(rows) < 5:
         return None
+    crossing = sum(1 for line_pts in scanlines if len(line_pts) >= 6)
+    if len(rows) < params.butt_min_gap_share * max(crossing, 1):
+        return None  # a real gap shows on most scanlines across the joint; noise shows on a few
     arr = np.array(rows)
     A = np.column_stack([np.ones(len(arr)), arr[:, 0]])
     coefs = []
