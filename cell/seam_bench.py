@@ -29,6 +29,7 @@ SWEEP_VOXELS_MM = (1, 2, 3, 4, 5, 6, 7, 8, 9, 10)
 class RunResult:
     scene: str
     noise: str
+    seed: int
     method: str
     crop: bool
     voxel_mm: float
@@ -64,7 +65,7 @@ def _pool(errors: list[np.ndarray]) -> tuple[float, float]:
     return float(np.sqrt(np.mean(e**2)) * 1000), float(e.max() * 1000)
 
 
-def run_once(scene: str, noise: str, capture: Capture, params: DetectParams, repeats: int) -> RunResult:
+def run_once(scene: str, noise: str, capture: Capture, params: DetectParams, repeats: int, seed: int = 0) -> RunResult:
     from perception.evaluate import point_to_polyline_distance
 
     times, fines, coarses = [], [], []
@@ -83,7 +84,7 @@ def run_once(scene: str, noise: str, capture: Capture, params: DetectParams, rep
         coarses.append(result.timing_s.get("coarse", 0.0))
     gt = capture.ground_truth or ()
     if result is None:
-        return RunResult(scene, noise, params.method, params.crop, params.voxel_m * 1000, len(gt), 0, 0, 0.0,
+        return RunResult(scene, noise, seed, params.method, params.crop, params.voxel_m * 1000, len(gt), 0, 0, 0.0,
                          float("nan"), float("nan"), float("nan"), float("nan"), float("nan"), float("nan"),
                          float("nan"), float("nan"), float("nan"), 0, 0, 0, error)  # fmt: skip
     X = capture.X_base_camera
@@ -99,7 +100,7 @@ def run_once(scene: str, noise: str, capture: Capture, params: DetectParams, rep
     cr, _ = _pool(cur)
     pc = result.point_counts
     return RunResult(
-        scene, noise, params.method, params.crop, params.voxel_m * 1000, rep.n_truth, rep.n_found,
+        scene, noise, seed, params.method, params.crop, params.voxel_m * 1000, rep.n_truth, rep.n_found,
         len(rep.false_seams), rep.coverage, rep.rmse_m * 1000, rep.max_m * 1000, rep.p95_m * 1000, lr, lm, cr,
         statistics.median(times), statistics.median(fines), statistics.median(coarses),
         pc.get("raw", 0), pc.get("cropped", 0), pc.get("downsampled", 0),
@@ -125,7 +126,7 @@ def run_bench(
     *,
     noises: Sequence[str] = NOISE_LEVELS,
     repeats: int = 3,
-    seed: int = 1,
+    seeds: Sequence[int] = (1,),
     sweep_scenes: Sequence[str] = ("ribs", "pipe_on_plate"),
     sweep_voxels_mm: Sequence[float] = SWEEP_VOXELS_MM,
     progress: Callable[[str], None] | None = None,
@@ -134,27 +135,30 @@ def run_bench(
     from sim_fakes.scenes import get_scene
 
     say = progress or (lambda _m: None)
-    captures: dict[tuple[str, str], Capture] = {}
+    captures: dict[tuple[str, str, int], Capture] = {}
     for s in scenes:
         for n in noises:
-            say(f"render {s} ({n})")
-            captures[(s, n)] = render(get_scene(s), noise=n, seed=seed).capture  # type: ignore[arg-type]
+            for sd in seeds:
+                say(f"render {s} ({n}, seed {sd})")
+                captures[(s, n, sd)] = render(get_scene(s), noise=n, seed=sd).capture  # type: ignore[arg-type]
     base = DetectParams()
     methods: tuple[Literal["refined", "paper"], ...] = ("refined", "paper")
     t1, t2, sw = [], [], []
-    for (s, n), cap in captures.items():
+    for (s, n, sd), cap in captures.items():
         for method in methods:
-            say(f"table I  {s} {n} {method}")
-            t1.append(run_once(s, n, cap, replace(base, method=method), repeats))
-        say(f"table II {s} {n} no crop")
-        t2.append(next(r for r in t1 if (r.scene, r.noise, r.method) == (s, n, "refined")))
-        t2.append(run_once(s, n, cap, replace(base, crop=False), max(1, repeats // 2)))
+            say(f"table I  {s} {n} seed {sd} {method}")
+            t1.append(run_once(s, n, cap, replace(base, method=method), repeats, sd))
+        if sd == seeds[0]:
+            say(f"table II {s} {n} no crop")
+            t2.append(next(r for r in t1 if (r.scene, r.noise, r.seed, r.method) == (s, n, sd, "refined")))
+            t2.append(run_once(s, n, cap, replace(base, crop=False), max(1, repeats // 2), sd))
     for s in sweep_scenes:
-        cap = captures.get((s, "stereo")) or render(get_scene(s), noise="stereo", seed=seed).capture
+        sd = seeds[0]
+        cap = captures.get((s, "stereo", sd)) or render(get_scene(s), noise="stereo", seed=sd).capture
         for v in sweep_voxels_mm:
             for method in methods:
                 say(f"sweep    {s} {v:g} mm {method}")
-                sw.append(run_once(s, "stereo", cap, replace(base, voxel_m=v / 1000.0, method=method), 1))
+                sw.append(run_once(s, "stereo", cap, replace(base, voxel_m=v / 1000.0, method=method), 1, sd))
     return BenchReport(t1, t2, sw)
 
 

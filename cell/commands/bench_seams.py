@@ -13,7 +13,7 @@ def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenes", help="comma-separated scene names (default: all)")
     p.add_argument("--noise", default="stereo,structured", help="noise levels (default: stereo,structured)")
     p.add_argument("--repeats", type=int, default=3, help="timing repeats per run (median is reported)")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seeds", default="1,2,3", help="noise seeds, comma-separated (default 1,2,3)")
     p.add_argument("--sweep", default="ribs,pipe_on_plate", help="scenes for the voxel sweep ('' to skip)")
     p.add_argument("--quick", action="store_true", help="one repeat, sweep at 1, 3, 6, 10 mm only")
     p.add_argument("--out", default="bench-out", help="folder for bench.json and bench.png")
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
             scenes,
             noises=[n for n in args.noise.split(",") if n],
             repeats=1 if args.quick else max(1, args.repeats),
-            seed=args.seed,
+            seeds=[int(x) for x in args.seeds.split(",") if x],
             sweep_scenes=[s for s in args.sweep.split(",") if s],
             sweep_voxels_mm=(1, 3, 6, 10) if args.quick else SWEEP_VOXELS_MM,
             progress=lambda m: status.update(f"benchmarking: {m}"),
@@ -62,11 +62,11 @@ def run(args: argparse.Namespace) -> int:
         return 0
 
     t1 = Table(title="Table I: seams, compute time, time per seam, accuracy (mm)")
-    for c in ("scene", "noise", "method", "seams found", "false", "coverage", "time s", "s/seam", "RMSE",
+    for c in ("scene", "noise", "seed", "method", "seams found", "false", "coverage", "time s", "s/seam", "RMSE",
               "p95", "max"):  # fmt: skip
         t1.add_column(c, justify="right")
     for r in report.table1:
-        t1.add_row(r.scene, r.noise, r.method, f"{r.found}/{r.truth}", str(r.false), _f(r.coverage, 2),
+        t1.add_row(r.scene, r.noise, str(r.seed), r.method, f"{r.found}/{r.truth}", str(r.false), _f(r.coverage, 2),
                    _f(r.time_s), _f(r.time_s / max(r.found, 1)), _f(r.rmse_mm), _f(r.p95_mm), _f(r.max_mm))  # fmt: skip
     console.print(t1)
     t2 = Table(title="Table II: points and time with and without the ROI crop (refined)")

@@ -24,6 +24,8 @@ def test_bench_subset_reports_tables_and_plot(tmp_path: Path, capsys) -> None:
             "--sweep",
             "t_joint",
             "--quick",
+            "--seeds",
+            "1",
             "--out",
             str(tmp_path),
             "--json",
