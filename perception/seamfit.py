@@ -286,9 +286,9 @@ def classify_junction_local(
     anchors = list(edge_points[pick])
     votes: dict[str, list[tuple[FloatArray, FloatArray, float]]] = {}
     r = params.patch_radius_m
-    for q in anchors:
-        ia = tree_a.query_ball_point(q, r)
-        ib = tree_b.query_ball_point(q, r)
+    hits_a = tree_a.query_ball_point(np.asarray(anchors), r)
+    hits_b = tree_b.query_ball_point(np.asarray(anchors), r)
+    for ia, ib in zip(hits_a, hits_b, strict=True):
         if len(ia) < 6 or len(ib) < 6:
             continue
         joint, na, nb, rms = classify_junction(tree_a.data[ia], tree_b.data[ib], params, viewpoint)
@@ -312,7 +312,9 @@ def fit_edge_path(edge_points: FloatArray, params: SeamParams, voxel_m: float) -
     nbins = max(2, int((t.max() - t.min()) / max(3 * voxel_m, 0.006)))
     bins = np.clip(((t - t.min()) / max(t.max() - t.min(), 1e-9) * nbins).astype(int), 0, nbins - 1)
     resid = edge_points - (c + t[:, None] * d)
-    means = np.array([resid[bins == k].mean(axis=0) for k in range(nbins) if np.any(bins == k)])
+    counts = np.bincount(bins, minlength=nbins)
+    sums = np.column_stack([np.bincount(bins, weights=resid[:, k], minlength=nbins) for k in range(3)])
+    means = sums[counts > 0] / counts[counts > 0, None]
     sagitta = float(np.linalg.norm(means, axis=1).max()) if len(means) else 0.0
     if sagitta < params.curved_sagitta_m:
         return "linear", np.array([c + t.min() * d, c + t.max() * d])
