@@ -26,11 +26,9 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
-import contextlib
 import ipaddress
 import json
 import logging
-import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -42,6 +40,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from drivers.fanuc_rmi import MAX_INSTRUCTIONS_IN_FLIGHT, ErrorID
+from sim_fakes.loop_thread import LoopThreadFake
 
 logger = logging.getLogger(__name__)
 
@@ -110,7 +109,7 @@ class _Session:
         self.closing = False
 
 
-class FakeFanucController:
+class FakeFanucController(LoopThreadFake):
     """The fake controller and its control handle (implements ``sim_fakes.faults.FaultInjectable``).
 
     ``host`` must be a loopback address; ``port`` 0 picks a free port (read it back from :attr:`port`).
@@ -138,7 +137,7 @@ class FakeFanucController:
             raise ValueError(f"start_xyzwpr_mm_deg needs 6 values, got {start_xyzwpr_mm_deg}")
         self.host = host
         self._requested_port = port
-        self.port = 0
+        super().__init__()
         self._tick_s = tick_s
         self._max_speed_mm_s = max_speed_mm_s
         self._max_rotation_speed_deg_s = max_rotation_speed_deg_s
@@ -170,35 +169,15 @@ class FakeFanucController:
         self._max_in_flight = 0
         self._t0 = time.monotonic()
 
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._thread: threading.Thread | None = None
         self._server: asyncio.Server | None = None
         self._session_servers: set[asyncio.Server] = set()
         self._motion_task: asyncio.Task[None] | None = None
 
     # ================================================================================== lifecycle
+    fake_name = "fake FANUC controller"
+
     def start(self) -> FakeFanucController:
-        if self._thread is not None:
-            raise RuntimeError("fake FANUC controller already started")
-        loop = asyncio.new_event_loop()
-        ready: concurrent.futures.Future[int] = concurrent.futures.Future()
-
-        def run() -> None:
-            asyncio.set_event_loop(loop)
-            try:
-                loop.run_until_complete(self._setup(ready))
-            except BaseException as err:  # report a bind failure to start()
-                if not ready.done():
-                    ready.set_exception(err)
-                loop.close()
-                return
-            loop.run_forever()
-            loop.close()
-
-        self._loop = loop
-        self._thread = threading.Thread(target=run, name="fake-fanuc", daemon=True)
-        self._thread.start()
-        self.port = ready.result(timeout=5.0)
+        super().start()
         logger.info("fake FANUC RMI listening on %s:%d", self.host, self.port)
         return self
 
@@ -207,48 +186,13 @@ class FakeFanucController:
         self._motion_task = asyncio.get_running_loop().create_task(self._motion_loop(), name="fake-fanuc-motion")
         ready.set_result(int(self._server.sockets[0].getsockname()[1]))
 
-    def stop(self) -> None:
-        """Close every socket, stop the loop and join its thread. Safe to call twice."""
-        loop, thread = self._loop, self._thread
-        if loop is None or thread is None:
-            return
-        if loop.is_running():
-            with contextlib.suppress(concurrent.futures.TimeoutError, RuntimeError):
-                asyncio.run_coroutine_threadsafe(self._shutdown(), loop).result(timeout=5.0)
-            loop.call_soon_threadsafe(loop.stop)
-        thread.join(timeout=5.0)
-        self._loop = None
-        self._thread = None
-
-    async def _shutdown(self) -> None:
+    async def _close_servers(self) -> None:
         for server in [self._server, *self._session_servers]:
             if server is not None:
                 server.close()
         self._session_servers.clear()
         for writer in list(self._writers):
             writer.close()
-        current = asyncio.current_task()
-        tasks = [t for t in asyncio.all_tasks() if t is not current]
-        for task in tasks:
-            task.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-
-    def __enter__(self) -> FakeFanucController:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def _call(self, fn: Callable[[], T], *, timeout_s: float = 5.0) -> T:
-        """Run ``fn`` on the fake's loop (where all its state lives) and return its result."""
-        loop = self._loop
-        if loop is None:
-            raise RuntimeError("fake FANUC controller is not running; call start() first")
-
-        async def call() -> T:
-            return fn()
-
-        return asyncio.run_coroutine_threadsafe(call(), loop).result(timeout=timeout_s)
 
     # ================================================================================== control handle
     def inject(self, fault: str, **params: Any) -> None:

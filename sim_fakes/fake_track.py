@@ -27,13 +27,10 @@ Usage::
 
 from __future__ import annotations
 
-import asyncio
 import concurrent.futures
-import contextlib
 import ipaddress
 import logging
 import math
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -72,6 +69,7 @@ from drivers.track import (
     registers_from_uint32,
     uint32_from_registers,
 )
+from sim_fakes.loop_thread import LoopThreadFake
 
 logger = logging.getLogger(__name__)
 
@@ -98,7 +96,7 @@ class MoveRecord:
     received_s: float
 
 
-class FakeTrack:
+class FakeTrack(LoopThreadFake):
     """The fake drive and its control handle (implements ``sim_fakes.faults.FaultInjectable``).
 
     ``host`` must be a loopback address; ``port`` 0 picks a free port (read it back from :attr:`port`).
@@ -136,7 +134,7 @@ class FakeTrack:
             raise ValueError("max_speed_m_s, max_accel_m_s2 and tick_s must be > 0, in_position_window_m >= 0")
         self.host = host
         self._requested_port = port
-        self.port = 0
+        super().__init__()
         self.unit_id = unit_id
         self.counts_per_m = counts_per_m
         # SI -> counts, once (the fake is the device side of the boundary).
@@ -167,39 +165,13 @@ class FakeTrack:
         self._moves: list[MoveRecord] = []
         self._refused: list[tuple[int, int]] = []  # (function code, exception code)
 
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._thread: threading.Thread | None = None
         self._server: Any = None
 
     # ================================================================================== lifecycle
+    fake_name = "fake track"
+
     def start(self) -> FakeTrack:
-        if self._thread is not None:
-            raise RuntimeError("fake track already started")
-        loop = asyncio.new_event_loop()
-        ready: concurrent.futures.Future[int] = concurrent.futures.Future()
-
-        def run() -> None:
-            asyncio.set_event_loop(loop)
-            try:
-                loop.run_until_complete(self._setup(ready))
-            except BaseException as err:  # report a bind failure to start()
-                if not ready.done():
-                    ready.set_exception(err)
-                loop.close()
-                return
-            loop.run_forever()
-            loop.close()
-
-        self._loop = loop
-        self._thread = threading.Thread(target=run, name="fake-track", daemon=True)
-        self._thread.start()
-        try:
-            self.port = ready.result(timeout=5.0)
-        except BaseException:
-            self._thread.join(timeout=5.0)
-            self._loop = None
-            self._thread = None
-            raise
+        super().start()
         logger.info("fake track Modbus TCP listening on %s:%d (unit %d)", self.host, self.port, self.unit_id)
         return self
 
@@ -225,47 +197,15 @@ class FakeTrack:
         ready.set_result(int(server.transport.sockets[0].getsockname()[1]))
 
     def stop(self) -> None:
-        """Close every socket, stop the loop and join its thread. Safe to call twice."""
-        loop, thread = self._loop, self._thread
-        if loop is None or thread is None:
-            return
-        if loop.is_running():
-            with contextlib.suppress(concurrent.futures.TimeoutError, RuntimeError):
-                asyncio.run_coroutine_threadsafe(self._shutdown(), loop).result(timeout=5.0)
-            loop.call_soon_threadsafe(loop.stop)
-        thread.join(timeout=5.0)
-        self._loop = None
-        self._thread = None
+        super().stop()
         self._server = None
 
-    async def _shutdown(self) -> None:
+    async def _close_servers(self) -> None:
         server = self._server
         if server is not None:
             for conn in list(server.active_connections.values()):
                 conn.close()
             server.close()
-        current = asyncio.current_task()
-        tasks = [t for t in asyncio.all_tasks() if t is not current]
-        for task in tasks:
-            task.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-
-    def __enter__(self) -> FakeTrack:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def _call(self, fn: Callable[[], T], *, timeout_s: float = 5.0) -> T:
-        """Run ``fn`` on the fake's loop (where all its state lives) and return its result."""
-        loop = self._loop
-        if loop is None:
-            raise RuntimeError("fake track is not running; call start() first")
-
-        async def call() -> T:
-            return fn()
-
-        return asyncio.run_coroutine_threadsafe(call(), loop).result(timeout=timeout_s)
 
     # ================================================================================== control handle
     def inject(self, fault: str, **params: Any) -> None:
