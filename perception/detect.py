@@ -539,7 +539,9 @@ def _finish(
     if c.kind == "linear":
         res_l = refine_linear(full, ra, rb, line, c.na, c.nb, sp, viewpoint, seed_labels=c.seed_labels)
         if res_l is None:
-            return []
+            # short pieces of a curved junction look straight to the coarse fit; the plane pair then
+            # fails, but cross-section tracking follows the curve from the piece
+            return _curve_fallback(full, c, labs, params, viewpoint) if ra and rb else []
         ends, n_a, n_b, r = res_l
         pieces = ends.reshape(-1, 2, 3)
         return [
@@ -563,6 +565,25 @@ def _finish(
     return [
         SeamGeometry("curved", "fillet", pts, n_a, n_b, (ra[0] if ra else -1, rb[0] if rb else -1), labs, c.support, r)
     ]
+
+
+def _curve_fallback(
+    full: FullRes, c: _Cand, labs: tuple[int, int], params: DetectParams, viewpoint: FloatArray
+) -> list[SeamGeometry]:
+    sp = params.seams
+    res_c = refine_curve(full, c.regions_a, c.regions_b, c.line, sp, viewpoint)
+    if res_c is None:
+        return []
+    pts, n_a, n_b, r = res_c
+    chord = pts[-1] - pts[0]
+    length = float(np.linalg.norm(chord))
+    if length < sp.min_length_m:
+        return []
+    rel = pts - pts[0]
+    d = chord / length
+    sagitta = float(np.linalg.norm(rel - np.outer(rel @ d, d), axis=1).max())
+    kind: Literal["linear", "curved"] = "curved" if sagitta > sp.curved_sagitta_m else "linear"
+    return [SeamGeometry(kind, "fillet", pts, n_a, n_b, (c.regions_a[0], c.regions_b[0]), labs, c.support, r)]
 
 
 def _to_seams(geoms: list[SeamGeometry], params: DetectParams, frame_X: FloatArray | None) -> list[Seam]:

@@ -35,7 +35,7 @@ class SeamParams:
     end_trim_m: float = 0.002  # keep path ends this far inside the measured extent
     refine: bool = True
     support_bin_m: float = 0.002
-    max_hole_m: float = 0.004  # a longer stretch without both faces seen splits the seam (occluder)
+    max_hole_m: float = 0.006  # a longer stretch without both faces seen splits the seam (occluder)
     refine_exclude_m: float = 0.0012  # ignore points this close to the junction (mixed, noisy)
     refine_band_m: float = 0.010
     plane_gate_sigma: float = 3.0
