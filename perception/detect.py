@@ -173,6 +173,10 @@ def _regions_to_seams(
             .astype(np.float64)
             .reshape(n_reg, 3)
         )
+        counts_r = np.bincount(regions[ok_r], minlength=n_reg).astype(np.float64)
+        resultant = np.linalg.norm(region_normals, axis=1) / np.maximum(counts_r, 1.0)
+        # a region whose normals fan out (mean resultant below cos 12 deg) is a curved surface
+        curved_regions = frozenset(int(r) for r in np.flatnonzero(resultant < np.cos(np.radians(12.0))))
         region_normals /= np.maximum(np.linalg.norm(region_normals, axis=1, keepdims=True), 1e-12)
         full = FullRes(pts, regions[grid.point_voxel], cKDTree(pts), region_normals, normals[grid.point_voxel], lab)
         cands = []
@@ -211,7 +215,8 @@ def _regions_to_seams(
                 # table is a concave junction, but not a seam of the workpiece. And a seam joins two
                 # distinct surfaces: the same label on both sides is a mask bleeding over a fold
                 continue
-            out.extend(_finish(full, c, labs, params, viewpoint))
+            curved_first = bool(curved_regions & set(c.regions_a + c.regions_b))
+            out.extend(_finish(full, c, labs, params, viewpoint, curved_first=curved_first))
         out = _dedupe(out)
     return out
 
@@ -323,14 +328,16 @@ def _dedupe(geoms: list[SeamGeometry], *, max_dist_m: float = 0.001) -> list[Sea
     for g in sorted(geoms, key=lambda g: -float(np.linalg.norm(np.diff(g.points, axis=0), axis=1).sum())):
         dup = False
         for i, k in enumerate(kept):
-            if g.kind != k.kind or g.joint != k.joint:
+            if g.joint != k.joint:
                 continue
             from perception.evaluate import point_to_polyline_distance
 
-            if point_to_polyline_distance(g.points, _extended(k.points, 0.02)).max() > max_dist_m:
+            # across kinds (a straight chord found along a curved seam) allow a little more
+            tol = max_dist_m if g.kind == k.kind else 1.5 * max_dist_m
+            if point_to_polyline_distance(g.points, _extended(k.points, 0.02)).max() > tol:
                 continue
             dup = True
-            if k.kind == "linear":
+            if k.kind == "linear" and g.kind == "linear":
                 d = k.points[-1] - k.points[0]
                 d /= np.linalg.norm(d)
                 t = np.concatenate([(k.points - k.points[0]) @ d, (g.points - k.points[0]) @ d])
@@ -512,7 +519,13 @@ def _merge(group: list[_Cand]) -> _Cand:
 
 
 def _finish(
-    full: FullRes, c: _Cand, labs: tuple[int, int], params: DetectParams, viewpoint: FloatArray
+    full: FullRes,
+    c: _Cand,
+    labs: tuple[int, int],
+    params: DetectParams,
+    viewpoint: FloatArray,
+    *,
+    curved_first: bool = False,
 ) -> list[SeamGeometry]:
     sp = params.seams
     ra, rb = c.regions_a, c.regions_b
@@ -536,6 +549,11 @@ def _finish(
                 c.rms,
             )
         ]
+    if c.kind == "linear" and curved_first and ra and rb:
+        # a straight-looking piece next to a curved surface: a plane pair would fit a short chord
+        curved = _curve_fallback(full, c, labs, params, viewpoint)
+        if curved and curved[0].kind == "curved":
+            return curved
     if c.kind == "linear":
         res_l = refine_linear(full, ra, rb, line, c.na, c.nb, sp, viewpoint, seed_labels=c.seed_labels)
         if res_l is None:
