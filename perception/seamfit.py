@@ -806,30 +806,36 @@ def butt_from_surfaces(
     sigma = max(rms, 1e-4)
     rows = []
     for line_pts in scanlines:
+        # points stay in pixel order: the last pixel on each plate is chosen by where it is in the
+        # image, not by its (noisy) coordinate, so it carries noise but no selection bias
         rel = line_pts - mid
         x, h = rel @ across, (line_pts - c) @ n
         near = np.abs(x) < 0.006
         if near.sum() < 6:
             continue
         x, h, tt = x[near], h[near], rel[near] @ d
-        top = np.abs(h) < 2.5 * sigma
-        xa_top, xb_top = x[top & (x < 0.002)], x[top & (x > -0.002)]
-        if len(xa_top) < 3 or len(xb_top) < 3:
+        top = np.flatnonzero(np.abs(h) < 2.5 * sigma)
+        if len(top) < 6:
             continue
-        xt = np.sort(x[top])
-        steps = np.diff(xt)
+        xs = x[top]
+        if xs[-1] < xs[0]:  # scanline runs from b to a: walk it from a to b
+            top, xs = top[::-1], xs[::-1]
+        steps = np.diff(xs)
         k = int(np.argmax(steps))
-        spacing = float(np.median(steps))
-        if steps[k] < 2.5 * max(spacing, 1e-5):
+        spacing = float(np.median(np.abs(steps)))
+        if steps[k] < 2.5 * max(spacing, 1e-5) or k < 1 or k + 2 >= len(xs):
             continue  # no gap on this scanline
-        xa_last, xb_first = xt[k], xt[k + 1]
-        below = h < -3.0 * sigma
-        walls = x[below & (x > xa_last - 0.0005) & (x < xb_first + 0.0005)]
-        wall_a = walls[np.abs(walls - xa_last) < 0.0005]
-        wall_b = walls[np.abs(walls - xb_first) < 0.0005]
-        # the last sample on a plate falls short of its edge by half the local spacing on average
-        sp_a = float(xt[k] - xt[k - 1]) if k >= 1 else spacing
-        sp_b = float(xt[k + 2] - xt[k + 1]) if k + 2 < len(xt) else spacing
+        ia, ib = top[k], top[k + 1]
+        xa_last, xb_first = float(x[ia]), float(x[ib])
+        lo_i, hi_i = min(ia, ib), max(ia, ib)
+        between = np.arange(lo_i + 1, hi_i)
+        walls = between[h[between] < -3.0 * sigma]
+        wall_b = x[walls][np.abs(x[walls] - xb_first) < 0.0005]
+        wall_a = x[walls][np.abs(x[walls] - xa_last) < 0.0005]
+        # signed steps: noise makes |step| too large on average, the signed median stays unbiased
+        sp_a = float(np.median(np.diff(xs[: k + 1]))) if k >= 1 else spacing
+        sp_b = float(np.median(np.diff(xs[k + 1 :]))) if k + 2 < len(xs) else spacing
+        # the last pixel on a plate falls short of its edge by half the local spacing on average
         edge_a = float(np.median(wall_a)) if len(wall_a) >= 2 else xa_last + 0.5 * sp_a
         edge_b = float(np.median(wall_b)) if len(wall_b) >= 2 else xb_first - 0.5 * sp_b
         rows.append((float(np.mean(tt)), edge_a, edge_b))
@@ -842,10 +848,14 @@ def butt_from_surfaces(
     A = np.column_stack([np.ones(len(arr)), arr[:, 0]])
     coefs = []
     for col in (1, 2):
+        # robust line: least squares, then reject beyond 3 MAD-sigmas and refit, twice
+        ok = np.ones(len(arr), bool)
         coef, *_ = np.linalg.lstsq(A, arr[:, col], rcond=None)
-        resid = arr[:, col] - A @ coef
-        ok = np.abs(resid) < 3 * max(float(np.std(resid)), 1e-4)
-        coef, *_ = np.linalg.lstsq(A[ok], arr[ok, col], rcond=None)
+        for _ in range(2):
+            resid = arr[:, col] - A @ coef
+            mad_sigma = 1.4826 * float(np.median(np.abs(resid[ok] - np.median(resid[ok]))))
+            ok = np.abs(resid) < 3 * max(mad_sigma, 1e-5)
+            coef, *_ = np.linalg.lstsq(A[ok], arr[ok, col], rcond=None)
         coefs.append(coef)
     lo = float(arr[:, 0].min()) + params.end_trim_m
     hi = float(arr[:, 0].max()) - params.end_trim_m
