@@ -212,12 +212,13 @@ class FullRes:
     region_normals: FloatArray
     normals: FloatArray  # (N, 3) each point's voxel normal
     labels: NDArray[np.int32] | None = None  # (N,) coarse surface label, when the coarse stage ran
+    unassigned_max_angle_deg: float = 60.0
 
     def compatible(self, idx: NDArray[np.int64], n: FloatArray, max_angle_deg: float = 15.0) -> NDArray[np.bool_]:
         """Points (by index) that could be part of a face with normal ``n``: regions facing the same way
         (fragments of that face), or unassigned points whose own normal is within 30 degrees."""
         reg = self.regions[idx]
-        ok = (reg < 0) & (np.abs(self.normals[idx] @ n) >= np.cos(np.radians(30.0)))
+        ok = (reg < 0) & (np.abs(self.normals[idx] @ n) >= np.cos(np.radians(self.unassigned_max_angle_deg)))
         if len(self.region_normals):
             cos = np.abs(self.region_normals @ n)
             ok |= (reg >= 0) & (cos[np.maximum(reg, 0)] >= np.cos(np.radians(max_angle_deg)))
