@@ -229,7 +229,11 @@ def merge_coplanar_regions(
         cj, nj, rj = planes[j]
         if abs(ni @ nj) < cos_t:
             continue
-        if abs((cj - ci) @ ni) > max_offset_m + 2 * ri or abs((ci - cj) @ nj) > max_offset_m + 2 * rj:
+        # the noise allowance is capped: a large, noisy region (a table) must not swallow a plate
+        # standing a few millimetres above it
+        if abs((cj - ci) @ ni) > max_offset_m + min(2 * ri, 0.002) or abs((ci - cj) @ nj) > max_offset_m + min(
+            2 * rj, 0.002
+        ):
             continue
         pi, pj = find(int(i)), find(int(j))
         if pi != pj:
