@@ -24,6 +24,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cell.commands.sim",
     "cell.commands.devices",
     "cell.commands.calibrate",
+    "cell.commands.run",
+    "cell.commands.serve",
 )
 
 EXIT_OK = 0

@@ -1,0 +1,73 @@
+"""``weldcell serve --config cell.toml``: the cell's HTTP service (cell.daemon) in the foreground.
+
+SIGTERM or Ctrl-C stops it safely: a running job's motion is stopped and the arc switched off first (the job ends
+in fault with that reason), queued jobs are cancelled, then the devices and the journal are closed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+from types import FrameType
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "serve",
+        help="run the cell as an HTTP service",
+        description="Serve the cell of --config over HTTP ([daemon] host, default 127.0.0.1, and port; a bearer "
+        "token is required when the host is not a loopback address): POST /jobs, GET /jobs, GET /jobs/{id}, "
+        "POST /jobs/{id}/approve|reject, POST /acknowledge, GET /status, GET / (status page), GET /metrics. Jobs run "
+        "one at a time; SIGTERM stops the motion and the arc before exiting.",
+    )
+    p.add_argument("--config", required=True, help="cell config file (TOML)")
+    p.add_argument(
+        "--no-sims",
+        action="store_true",
+        help="connect to simulators already running ('weldcell sim up') instead of starting the config's fakes",
+    )
+    p.add_argument("--port", type=int, default=None, help="override [daemon] port (0: a free port, printed)")
+    p.set_defaults(func=run_serve)
+
+
+def run_serve(args: argparse.Namespace) -> int:
+    from cell.config import load_config
+    from cell.daemon import Daemon
+    from cell.runner import safety_limits
+
+    if args.verbose < 2:
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    config = load_config(args.config)
+    safety_limits(config)  # refuse a config without [safety] before starting anything
+    if args.port is not None:
+        config = config.model_copy(update={"daemon": config.daemon.model_copy(update={"port": args.port})})
+    stop = threading.Event()
+    received: list[str] = []
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        received.append(signal.Signals(signum).name)
+        stop.set()
+
+    signals = (signal.SIGINT, signal.SIGTERM)
+    # ignored while the devices start (a fake UR runs in a child process that would inherit a default handler)
+    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in signals}
+    try:
+        daemon = Daemon(config, start_simulators=not args.no_sims)
+        for sig in signals:
+            signal.signal(sig, on_signal)
+        daemon.start()
+        host, port = daemon.address
+        print(f"weldcell serve: listening on http://{host}:{port} (journal {daemon.journal.path})", flush=True)
+        for record in daemon.interrupted:
+            print(f"weldcell serve: job {record.id} ({record.job_file}) was interrupted: not resumed", flush=True)
+        while not stop.wait(0.25):
+            pass
+        print(f"weldcell serve: {received[0] if received else 'stop'} received, stopping safely", flush=True)
+        daemon.shutdown(received[0] if received else "stop")
+        print("weldcell serve: stopped", flush=True)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0

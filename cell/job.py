@@ -1,0 +1,238 @@
+"""A job file: what to weld on one workpiece, as TOML read into strict pydantic models (unknown keys refused).
+
+Layout (see examples/jobs/ribs.toml)::
+
+    workpiece = "ribs"            # a name for reports and the journal
+    approval = false              # true: an operator approves the planned path before the arc is struck
+    frame = "fixture"             # capture poses are X_fixture_tool (the cell config's [fixture] says where the
+                                  # fixture is), or "base" (default): X_base_tool at the capture's track position
+
+    [[capture]]                   # one or more: where the camera looks from
+    track_position_m = 0.0        # the carriage position (metres)
+    xyz_m = [-0.30, -0.36, 0.37]  # the tool pose (in `frame`): xyz_m + rotvec_rad (UR pose vector),
+    rotvec_rad = [...]            #   or xyzwpr_mm_deg = [X, Y, Z, W, P, R]
+    prompts = "camera"            # "camera" (the prompts the camera delivers, else automatic), "automatic",
+                                  # or a prompts.json file (relative to the job file)
+
+    [welding]                     # overrides the cell config's [welding] (cell.config.WeldingConfig)
+    travel_speed_m_s = 0.025
+    work_angle_deg = 0.0
+
+    [seams]                       # which detected seams to weld
+    kinds = ["linear"]            # "linear" | "curved"; absent: all
+    ids = [0, 3]                  # planner seam ids (capture k: k * 1000 + detector id); absent: all
+    min_length_m = 0.02
+
+Every mistake is a :class:`cell.errors.ConfigError` naming the file and the key (``capture[1].xyz_m``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, Field, ValidationError, model_validator
+
+from cell.config import DetectionConfig, PoseConfig, Section, WeldingConfig, _toml_context
+from cell.errors import ConfigError
+from cell.planning import SeamFilter, WeldParams
+
+PROMPTS_FROM_CAMERA = "camera"
+PROMPTS_AUTOMATIC = "automatic"
+
+
+class CaptureSpec(PoseConfig):
+    """``[[capture]]``: the carriage at ``track_position_m`` (metres) and the tool at the pose of
+    :class:`cell.config.PoseConfig` (base frame); ``prompts``: ``"camera"``, ``"automatic"`` or a prompts file."""
+
+    track_position_m: float = 0.0
+    prompts: str = Field(default=PROMPTS_FROM_CAMERA, min_length=1)
+
+    @model_validator(mode="after")
+    def _check_track(self) -> CaptureSpec:
+        if not math.isfinite(self.track_position_m):
+            raise ValueError(f"track_position_m must be a finite number, got {self.track_position_m}")
+        return self
+
+
+class SeamSelection(Section):
+    """``[seams]``: the seams to weld (:class:`cell.planning.SeamFilter`)."""
+
+    ids: list[int] | None = None
+    kinds: list[Literal["linear", "curved"]] | None = None
+    min_length_m: float = Field(default=0.0, ge=0)
+
+    def seam_filter(self) -> SeamFilter:
+        return SeamFilter(
+            ids=None if self.ids is None else frozenset(self.ids),
+            kinds=None if self.kinds is None else frozenset(self.kinds),
+            min_length_m=self.min_length_m,
+        )
+
+
+class JobFile(Section):
+    """The whole job file (see the module docstring)."""
+
+    workpiece: str = Field(min_length=1)
+    approval: bool = False
+    frame: Literal["base", "fixture"] = "base"
+    capture: list[CaptureSpec] = Field(min_length=1)
+    welding: WeldingConfig = Field(default_factory=WeldingConfig)
+    seams: SeamSelection = Field(default_factory=SeamSelection)
+
+
+@dataclass(frozen=True)
+class Job:
+    """A validated job: ``spec`` (the file's content), ``source`` (the file, or a label for a job sent as text),
+    ``base_dir`` (where relative prompt files are looked up) and the original ``text``."""
+
+    spec: JobFile
+    source: str
+    base_dir: Path
+    text: str
+
+    @property
+    def workpiece(self) -> str:
+        return self.spec.workpiece
+
+    @property
+    def captures(self) -> list[CaptureSpec]:
+        return self.spec.capture
+
+    def where(self, key: str) -> str:
+        return f"{self.source}: {key}"
+
+    def prompts_px(self, index: int) -> np.ndarray | None:
+        """(N, 2) prompts of capture ``index`` from its prompts file, or None for ``"camera"``/``"automatic"``."""
+        value = self.captures[index].prompts
+        if value in (PROMPTS_FROM_CAMERA, PROMPTS_AUTOMATIC):
+            return None
+        path = Path(value).expanduser()
+        path = path if path.is_absolute() else self.base_dir / path
+        key = self.where(f"capture[{index}].prompts")
+        try:
+            obj = json.loads(path.read_text(encoding="utf-8"))
+        except OSError as err:
+            raise ConfigError(f"{key}: cannot read the prompts file {path}: {err.strerror or err}") from err
+        except (UnicodeDecodeError, json.JSONDecodeError) as err:
+            raise ConfigError(f"{key}: the prompts file {path} is not valid JSON: {err}") from err
+        points = obj.get("prompts_px", obj.get("points")) if isinstance(obj, dict) else obj
+        try:
+            arr = np.asarray(points, dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise ConfigError(f"{key}: {path} must hold [[u, v], ...] pixel prompts") from err
+        if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 2 or not np.all(np.isfinite(arr)):
+            raise ConfigError(f"{key}: {path} must hold at least two [u, v] pixel prompts, got shape {arr.shape}")
+        return arr
+
+
+def load_job(path: str | os.PathLike[str]) -> Job:
+    """Read and validate a job file; every problem raises :class:`ConfigError` naming the file and the key."""
+    file = Path(path)
+    try:
+        text = file.read_bytes().decode("utf-8")
+    except FileNotFoundError as err:
+        raise ConfigError(f"{file}: job file does not exist") from err
+    except OSError as err:
+        raise ConfigError(f"{file}: cannot read job file: {err.strerror or err}") from err
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{file}: not UTF-8 text (is it really a TOML job file?)") from err
+    return job_from_text(text, source=str(file), base_dir=file.resolve().parent)
+
+
+def job_from_text(text: str, *, source: str = "<job>", base_dir: str | os.PathLike[str] | None = None) -> Job:
+    """Validate a job given as TOML text (``source`` names it in messages, ``base_dir`` resolves prompt files)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{source}: malformed TOML: {_toml_context(err, text)}") from err
+    try:
+        spec = JobFile.model_validate(data)
+    except ValidationError as err:
+        problems = "; ".join(_describe(e) for e in err.errors(include_url=False))
+        raise ConfigError(f"{source}: {problems}") from err
+    job = Job(spec, source, Path(base_dir) if base_dir is not None else Path.cwd(), text)
+    for i, _capture in enumerate(job.captures):
+        job.prompts_px(i)  # a missing or malformed prompts file is a bad job, found before anything moves
+    return job
+
+
+def weld_params(cell_defaults: WeldingConfig, job: WeldingConfig, seam_filter: SeamFilter) -> WeldParams:
+    """:class:`WeldParams` from the job's ``[welding]`` over the cell's over the planner's defaults; degrees and
+    ``arc_output`` are converted here, once."""
+    merged: dict[str, Any] = {}
+    for source in (cell_defaults, job):
+        merged.update({k: v for k, v in source.model_dump().items() if v is not None})
+    kwargs: dict[str, Any] = {}
+    for key, value in merged.items():
+        if key == "work_angle_deg":
+            kwargs["work_angle_rad"] = math.radians(value)
+        elif key == "travel_angle_deg":
+            kwargs["travel_angle_rad"] = math.radians(value)
+        elif key == "arc_output":
+            kwargs["arc_do_index"] = value
+        else:
+            kwargs[key] = value
+    return WeldParams(**kwargs, seam_filter=seam_filter)
+
+
+def detect_params(detection: DetectionConfig) -> Any:
+    """:class:`perception.detect.DetectParams` of a ``[detection]`` table."""
+    from perception.detect import DetectParams
+
+    near, far = detection.z_range_m
+    return DetectParams(
+        crop=detection.crop,
+        roi_band_m=detection.roi_band_m,
+        z_range_m=(near, far),
+        voxel_m=detection.voxel_m,
+        method=detection.method,
+    )
+
+
+def _describe(error: Any) -> str:
+    loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in error["loc"]).replace(".[", "[")
+    kind = error["type"]
+    msg = str(error["msg"])
+    if msg.startswith("Value error, "):
+        msg = msg[len("Value error, ") :]
+    if kind == "extra_forbidden":
+        allowed = _allowed_keys(error["loc"][:-1])
+        hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
+        return f"{loc}: unknown key{hint}"
+    if kind == "missing":
+        return f"{loc}: required key is missing"
+    got = error.get("input")
+    shown = "" if isinstance(got, dict) or kind.startswith("value_error") else f" (got {got!r})"
+    return f"{loc or 'file'}: {msg}{shown}"
+
+
+def _allowed_keys(loc: tuple[Any, ...]) -> list[str]:
+    model: type[BaseModel] = JobFile
+    for part in loc:
+        if isinstance(part, int):
+            continue
+        field = model.model_fields.get(str(part))
+        if field is None:
+            return []
+        inner = _model_of(field.annotation)
+        if inner is None:
+            return []
+        model = inner
+    return list(model.model_fields)
+
+
+def _model_of(annotation: Any) -> type[BaseModel] | None:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in getattr(annotation, "__args__", ()):
+        inner = _model_of(arg)
+        if inner is not None:
+            return inner
+    return None

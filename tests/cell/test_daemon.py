@@ -1,0 +1,317 @@
+"""``weldcell serve`` (cell.daemon) against the fakes, loopback only.
+
+Jobs submitted over HTTP run one at a time and are journaled; status, jobs, metrics and the status page answer; a
+configured bearer token is required; a SIGTERM while a job welds stops the motion and leaves the arc off; a daemon
+killed mid-job reports that job as interrupted when it starts again, and never resumes it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import tomllib
+import urllib.error
+import urllib.request
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from cell.config import CellConfig, config_from_dict, load_config
+from cell.daemon import Daemon
+from cell.errors import ConfigError
+from cell.factory import Simulators, start_simulators
+from cell.journal import Journal
+from tests.cell.test_runner import EXAMPLES, REPO, cell_config, job_text
+
+TOKEN = "s3cret-token-for-tests"
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def request(
+    url: str, *, method: str = "GET", body: bytes | None = None, headers: dict[str, str] | None = None
+) -> tuple[int, Any]:
+    """(status, decoded JSON or text) of one HTTP request."""
+    req = urllib.request.Request(url, data=body, method=method, headers=headers or {})
+    try:
+        with urllib.request.urlopen(req, timeout=10) as resp:
+            status, data, ctype = resp.status, resp.read(), resp.headers.get("Content-Type", "")
+    except urllib.error.HTTPError as err:
+        status, data, ctype = err.code, err.read(), err.headers.get("Content-Type", "")
+    if "json" in ctype:
+        return status, json.loads(data)
+    return status, data if "image" in ctype else data.decode()
+
+
+def wait_for(check: Callable[[], Any], *, timeout_s: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = check()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"{what} did not happen within {timeout_s} s")
+
+
+def finished_job(base: str, job_id: int) -> dict[str, Any] | None:
+    """The job's view once it is final and its report is stored (the report follows the last state change)."""
+    view = request(f"{base}/jobs/{job_id}")[1]
+    return view if view["state"] in ("done", "failed", "cancelled") and view["report"] is not None else None
+
+
+def settled_status(base: str) -> dict[str, Any] | None:
+    """GET /status once the worker holds no job."""
+    st = request(f"{base}/status")[1]
+    return st if st["current_job"] is None else None
+
+
+def job_state(base: str, job_id: int, headers: dict[str, str] | None = None) -> str:
+    status, view = request(f"{base}/jobs/{job_id}", headers=headers)
+    assert status == 200, view
+    return str(view["state"])
+
+
+@pytest.fixture
+def daemon(tmp_path: Path) -> Iterator[tuple[Daemon, str]]:
+    config = cell_config(tmp_path, "sim-cell-fanuc.toml", daemon={"port": 0})
+    d = Daemon(config).start()
+    host, port = d.address
+    try:
+        yield d, f"http://{host}:{port}"
+    finally:
+        d.shutdown("test over")
+
+
+# ---------------------------------------------------------------------------------------------- in process
+@pytest.mark.timeout(60)
+def test_jobs_submitted_over_http_run_in_order_and_are_reported(daemon: tuple[Daemon, str]) -> None:
+    _, base = daemon
+    status, answer = request(f"{base}/jobs", method="POST", body=job_text(min_length_m=0.1).encode())
+    assert status == 201 and answer["state"] == "queued"
+    first = int(answer["id"])
+    body = json.dumps({"toml": job_text(approval=True), "dry_run": False}).encode()
+    status, answer = request(f"{base}/jobs", method="POST", body=body, headers={"Content-Type": "application/json"})
+    assert status == 201
+    second = int(answer["id"])
+    status, answer = request(f"{base}/jobs", method="POST", body=b'workpiece = "x"\n[welding]\ncurrent_a = 180\n')
+    assert status == 400 and "welding.current_a: unknown key" in answer["error"]
+
+    # an operator pauses the first job while it welds (motion stopped, arc off) and resumes it
+    wait_for(lambda: request(f"{base}/status")[1]["state"] == "welding", timeout_s=20, what="welding")
+    status, answer = request(f"{base}/pause", method="POST", body=b'{"operator": "Ada"}')
+    assert status == 200 and answer["state"] == "paused", answer
+    sims = daemon[0].cell.simulators
+    assert sims is not None and not sims.robot.digital_output(1)
+    assert request(f"{base}/pause", method="POST", body=b'{"operator": "Ada"}')[0] == 409
+    status, answer = request(f"{base}/resume", method="POST", body=b'{"operator": "Ada"}')
+    assert status == 200 and answer["state"] == "welding", answer
+    view = wait_for(lambda: finished_job(base, first), timeout_s=30, what="the first job")
+    assert view["state"] == "done"
+    assert view["report"]["outcome"] == "welded" and view["report"]["seams_welded"] >= 2
+    states = [e["to"] for e in view["events"] if e["from"] != e["to"]]
+    assert states[0] == "homing" and states[-1] == "done" and "paused" in states
+
+    # the second job waits for an operator, who refuses its path: it ends cancelled, nothing welded
+    wait_for(
+        lambda: (request(f"{base}/status")[1]["current_job"] or {}).get("awaiting_approval"),
+        timeout_s=20,
+        what="the approval request",
+    )
+    status, answer = request(f"{base}/jobs/{second}/approve", method="POST", body=b"{}")
+    assert status == 400 and "operator" in answer["error"]
+    status, answer = request(f"{base}/jobs/{second}/reject", method="POST", body=b'{"operator": "Ada"}')
+    assert status == 200 and answer == {"id": second, "approved": False, "operator": "Ada"}
+    wait_for(lambda: job_state(base, second) == "cancelled", timeout_s=10, what="the rejection")
+
+    st = wait_for(lambda: settled_status(base), timeout_s=10, what="the worker to finish")
+    assert st["state"] == "idle" and st["queued"] == []
+    assert [j["id"] for j in st["recent_jobs"]] == [second, first]
+    status, answer = request(f"{base}/acknowledge", method="POST", body=b'{"operator": "Ada"}')
+    assert status == 409 and "not in fault" in answer["error"]
+    status, metrics = request(f"{base}/metrics")
+    assert status == 200
+    assert 'weldcell_jobs_finished_total{outcome="welded"} 1' in metrics
+    assert 'weldcell_jobs_finished_total{outcome="rejected"} 1' in metrics
+    assert 'weldcell_cell_state{state="idle"} 1' in metrics
+    assert f"weldcell_seams_welded_total {view['report']['seams_welded']}" in metrics
+    status, page = request(f"{base}/")
+    assert status == 200 and "<h1>weldcell: idle</h1>" in page and 'src="/status.png"' in page
+    status, png = request(f"{base}/status.png")
+    assert status == 200 and png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert request(f"{base}/jobs/999")[0] == 404
+
+
+@pytest.mark.timeout(30)
+def test_a_configured_token_is_required_and_a_non_loopback_host_needs_one(tmp_path: Path) -> None:
+    data = tomllib.loads((EXAMPLES / "sim-cell-fanuc.toml").read_text(encoding="utf-8"))
+    data["daemon"]["host"] = "0.0.0.0"
+    with pytest.raises(ConfigError, match=r"daemon: host = '0\.0\.0\.0' is not a loopback address: set 'token'"):
+        config_from_dict(data, source="cell.toml")
+
+    config = cell_config(tmp_path, "sim-cell-fanuc.toml", daemon={"port": 0, "token": TOKEN})
+    with Daemon(config) as d:
+        host, port = d.address
+        base = f"http://{host}:{port}"
+        for headers in ({}, {"Authorization": "Bearer wrong-token-wrong-token"}, {"Authorization": TOKEN}):
+            status, answer = request(f"{base}/status", headers=headers)
+            assert status == 401 and "bearer token" in answer["error"]
+        status, _ = request(f"{base}/jobs", method="POST", body=job_text().encode())
+        assert status == 401
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+        status, st = request(f"{base}/status", headers=auth)
+        assert status == 200 and st["state"] == "idle"
+        status, answer = request(f"{base}/jobs?dry_run=1", method="POST", body=job_text().encode(), headers=auth)
+        assert status == 201 and answer["dry_run"] is True
+
+
+# ---------------------------------------------------------------------------------------------- subprocess
+class Served:
+    """``weldcell serve --no-sims`` as a child process, connected to simulators this test process runs."""
+
+    def __init__(self, config: Path) -> None:
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "cell.cli", "serve", "--config", str(config), "--no-sims"],
+            cwd=REPO,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.put(line.rstrip("\n"))
+
+    def wait_line(self, marker: str, timeout_s: float) -> str:
+        deadline = time.monotonic() + timeout_s
+        seen = []
+        while time.monotonic() < deadline:
+            try:
+                line = self.lines.get(timeout=0.1)
+            except queue.Empty:
+                if self.proc.poll() is not None:
+                    break
+                continue
+            seen.append(line)
+            if marker in line:
+                return line
+        raise AssertionError(f"no {marker!r} within {timeout_s} s: {seen}")
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=10)
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        self.reader.join(timeout=2)
+
+
+def served_config(tmp_path: Path) -> tuple[Path, CellConfig]:
+    """The FANUC example on free fixed ports (the simulators run here, the daemon in a child process)."""
+    text = (EXAMPLES / "sim-cell-fanuc.toml").read_text(encoding="utf-8")
+    replacements = {
+        "port = 16001": f"port = {free_port()}",
+        "port = 5020": f"port = {free_port()}",
+        "port = 8765": f"port = {free_port()}",
+        "speed_m_s = 0.1                # default tool speed": "speed_m_s = 0.5",
+        "max_speed_m_s = 0.30": "max_speed_m_s = 0.6",
+        'journal = "../out/weldcell-fanuc-journal.sqlite3"': f'journal = "{tmp_path / "journal.sqlite3"}"',
+        'status_image = "../out/weldcell-fanuc-status.png"': f'status_image = "{tmp_path / "status.png"}"',
+    }
+    for old, new in replacements.items():
+        assert text.count(old) == 1, old
+        text = text.replace(old, new)
+    path = tmp_path / "cell.toml"
+    path.write_text(text, encoding="utf-8")
+    return path, load_config(path)
+
+
+@pytest.fixture
+def sims(tmp_path: Path) -> Iterator[tuple[Path, CellConfig, Simulators]]:
+    path, config = served_config(tmp_path)
+    with start_simulators(config) as running:
+        yield path, config, running
+
+
+def submit_and_wait_for_the_arc(base: str, sims: Simulators) -> int:
+    status, answer = request(
+        f"{base}/jobs", method="POST", body=job_text(min_length_m=0.1, travel_speed_m_s=0.05).encode()
+    )
+    assert status == 201, answer
+    wait_for(lambda: sims.robot.digital_output(1), timeout_s=30, what="arc on")
+    return int(answer["id"])
+
+
+@pytest.mark.timeout(60)
+def test_sigterm_while_welding_stops_the_motion_and_leaves_the_arc_off(
+    sims: tuple[Path, CellConfig, Simulators], tmp_path: Path
+) -> None:
+    path, config, running = sims
+    served = Served(path)
+    try:
+        served.wait_line("listening on", timeout_s=30)
+        base = f"http://127.0.0.1:{config.daemon.port}"
+        job_id = submit_and_wait_for_the_arc(base, running)
+        served.proc.send_signal(signal.SIGTERM)
+        assert served.proc.wait(timeout=20) == 0
+        assert not running.robot.digital_output(1)  # arc off
+        assert running.robot.in_flight() == 0  # no motion left queued
+        position = running.robot.xyzwpr_mm_deg()
+        time.sleep(0.2)
+        assert running.robot.xyzwpr_mm_deg() == position  # standing still
+    finally:
+        served.close()
+    with Journal(tmp_path / "journal.sqlite3") as journal:
+        assert journal.interrupted == ()
+        record = journal.job(job_id)
+        assert record.state == "failed" and record.error is not None and "SIGTERM" in record.error
+
+
+@pytest.mark.timeout(60)
+def test_a_daemon_killed_mid_job_reports_it_interrupted_on_restart_and_does_not_resume_it(
+    sims: tuple[Path, CellConfig, Simulators],
+) -> None:
+    path, config, running = sims
+    served = Served(path)
+    try:
+        served.wait_line("listening on", timeout_s=30)
+        base = f"http://127.0.0.1:{config.daemon.port}"
+        job_id = submit_and_wait_for_the_arc(base, running)
+        served.proc.kill()  # SIGKILL: no chance to clean up
+        served.proc.wait(timeout=10)
+    finally:
+        served.close()
+    restarted = Served(path)
+    try:
+        assert f"job {job_id}" in restarted.wait_line("was interrupted", timeout_s=30)
+        base = f"http://127.0.0.1:{config.daemon.port}"
+        wait_for(lambda: request(f"{base}/status")[0] == 200, timeout_s=10, what="the restarted daemon")
+        assert not running.robot.digital_output(1)  # the restarted daemon switched the arc off first
+        st = request(f"{base}/status")[1]
+        assert st["state"] == "idle" and st["current_job"] is None and st["queued"] == []
+        assert [j["id"] for j in st["interrupted"]] == [job_id]
+        assert job_state(base, job_id) == "interrupted"
+        time.sleep(0.5)
+        assert job_state(base, job_id) == "interrupted" and request(f"{base}/status")[1]["current_job"] is None
+    finally:
+        restarted.proc.send_signal(signal.SIGTERM)
+        restarted.proc.wait(timeout=20)
+        restarted.close()

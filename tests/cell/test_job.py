@@ -1,0 +1,128 @@
+"""Job files: the example loads; welding parameters merge job over cell over planner defaults, in SI; every mistake is
+a ConfigError naming the file and the key; the new config tables check their values."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cell.config import DetectionConfig, WeldingConfig, config_from_dict, load_config
+from cell.errors import ConfigError
+from cell.job import detect_params, job_from_text, load_job, weld_params
+from cell.planning import SeamFilter, WeldParams
+from cell.runner import safety_limits
+from perception.transforms import X_from_ur_pose, X_from_xyzwpr_mm_deg
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLES = REPO / "examples"
+
+CAPTURE = "[[capture]]\nxyz_m = [0.5, 0.0, 0.4]\nrotvec_rad = [3.14159, 0.0, 0.0]\n"
+
+
+def error_of(text: str, source: str = "job.toml") -> str:
+    with pytest.raises(ConfigError) as info:
+        job_from_text(text, source=source)
+    return str(info.value)
+
+
+def test_the_ribs_example_loads_and_its_parameters_override_the_cells() -> None:
+    job = load_job(EXAMPLES / "jobs" / "ribs.toml")
+    assert (job.workpiece, job.spec.approval, job.spec.frame, len(job.captures)) == ("ribs", False, "fixture", 1)
+    capture = job.captures[0]
+    assert capture.prompts == "camera" and job.prompts_px(0) is None
+    X = capture.X_base_tool()
+    assert np.allclose(X, X_from_ur_pose([-0.29854, -0.36207, 0.36562, -2.43288, -0.95895, -1.10208]))
+    config = load_config(EXAMPLES / "sim-cell-fanuc.toml")
+    params = weld_params(config.welding, job.spec.welding, job.spec.seams.seam_filter())
+    assert params.travel_speed_m_s == 0.025 and params.approach_m == 0.04  # the job's
+    assert params.air_speed_m_s == 0.25  # the cell's
+    assert params.max_segment_m == WeldParams().max_segment_m  # the planner's
+    assert params.travel_angle_rad == pytest.approx(math.radians(10.0)) and params.work_angle_rad == 0.0
+    assert (params.arc_do_index, params.weld_job) == (0, 3)
+    assert params.seam_filter == SeamFilter(kinds=frozenset({"linear"}), min_length_m=0.02)
+
+
+def test_both_example_cells_run_the_ribs_job_from_their_fixture() -> None:
+    for name in ("sim-cell.toml", "sim-cell-fanuc.toml"):
+        config = load_config(EXAMPLES / name)
+        assert config.fixture is not None and config.home.pose is not None
+        limits = safety_limits(config)
+        assert limits.max_tilt_rad == pytest.approx(math.radians(60.0))
+        assert limits.geometry.track is not None and limits.geometry.track.max_m == 2.5
+    ur = load_config(EXAMPLES / "sim-cell.toml")
+    assert ur.fixture is not None and ur.camera.X_base_world == ur.fixture.X_world_fixture
+
+
+def test_a_pose_is_xyz_and_rotation_vector_or_xyzwpr() -> None:
+    job = job_from_text(
+        'workpiece = "w"\n[[capture]]\ntrack_position_m = 0.4\nxyzwpr_mm_deg = [500, 10, 400, 180, 0, 90]\n',
+        source="j.toml",
+    )
+    assert job.spec.frame == "base" and job.captures[0].track_position_m == 0.4
+    assert np.allclose(job.captures[0].X_base_tool(), X_from_xyzwpr_mm_deg([500, 10, 400, 180, 0, 90]))
+    both = 'workpiece = "w"\n' + CAPTURE + "xyzwpr_mm_deg = [500, 10, 400, 180, 0, 90]\n"
+    assert error_of(both) == "job.toml: capture[0]: give either xyz_m with rotvec_rad, or xyzwpr_mm_deg"
+    half = 'workpiece = "w"\n[[capture]]\nxyz_m = [0.5, 0.0, 0.4]\n'
+    assert error_of(half) == "job.toml: capture[0]: xyz_m and rotvec_rad go together"
+
+
+def test_mistakes_name_the_file_and_the_key() -> None:
+    assert error_of(CAPTURE) == "job.toml: workpiece: required key is missing"
+    assert error_of('workpiece = "w"\n') == "job.toml: capture: required key is missing"
+    unknown = error_of('workpiece = "w"\n' + CAPTURE + "[welding]\ncurrent_a = 180\n")
+    assert unknown.startswith("job.toml: welding.current_a: unknown key (allowed: travel_speed_m_s, ")
+    assert error_of('workpiece = "w"\nspeed = 1\n' + CAPTURE).startswith("job.toml: speed: unknown key (allowed: ")
+    typed = error_of('workpiece = "w"\n' + CAPTURE + '[welding]\ntravel_speed_m_s = "fast"\n')
+    assert typed == "job.toml: welding.travel_speed_m_s: Input should be a valid number (got 'fast')"
+    angle = error_of('workpiece = "w"\n' + CAPTURE + "[welding]\nwork_angle_deg = 95\n")
+    assert angle == "job.toml: welding.work_angle_deg: Input should be less than 90 (got 95)"
+    kinds = error_of('workpiece = "w"\n' + CAPTURE + '[seams]\nkinds = ["zigzag"]\n')
+    assert kinds.startswith("job.toml: seams.kinds[0]: Input should be 'linear' or 'curved'")
+    assert "malformed TOML" in error_of('workpiece = "w\n')
+
+
+def test_prompts_come_from_a_file_relative_to_the_job(tmp_path: Path) -> None:
+    (tmp_path / "p.json").write_text(json.dumps({"prompts_px": [[10.5, 20.0], [300.0, 40.0]]}), encoding="utf-8")
+    path = tmp_path / "job.toml"
+    path.write_text('workpiece = "w"\n' + CAPTURE + 'prompts = "p.json"\n', encoding="utf-8")
+    prompts = load_job(path).prompts_px(0)
+    assert prompts is not None and prompts.tolist() == [[10.5, 20.0], [300.0, 40.0]]
+    path.write_text('workpiece = "w"\n' + CAPTURE + 'prompts = "missing.json"\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"job\.toml: capture\[0\]\.prompts: cannot read the prompts file"):
+        load_job(path)
+    with pytest.raises(ConfigError, match=r"nope\.toml: job file does not exist"):
+        load_job(tmp_path / "nope.toml")
+
+
+def test_detection_and_welding_tables_map_to_the_library_parameters() -> None:
+    p = detect_params(DetectionConfig(voxel_m=0.004, crop=False, z_range_m=[0.2, 1.5], method="paper"))
+    assert (p.voxel_m, p.crop, p.z_range_m, p.method) == (0.004, False, (0.2, 1.5), "paper")
+    params = weld_params(WeldingConfig(work_angle_deg=30.0), WeldingConfig(arc_output=3), SeamFilter())
+    assert params.work_angle_rad == pytest.approx(math.pi / 6) and params.arc_do_index == 3
+
+
+def test_the_new_config_tables_refuse_impossible_values() -> None:
+    base = {"robot": {"kind": "fanuc", "host": "192.0.2.10"}, "camera": {"kind": "oakd"}}
+    safety = {
+        "workspace_min_world": [0.0, 0.0, 0.0],
+        "workspace_max_world": [1.0, -1.0, 1.0],
+        "reach_radius_m": 1.0,
+        "reach_preferred_m": 0.5,
+    }
+    with pytest.raises(ConfigError, match=r"workspace_min_world .* must lie below workspace_max_world"):
+        config_from_dict({**base, "safety": safety}, source="c.toml")
+    safety["workspace_max_world"] = [1.0, 1.0, 1.0]
+    with pytest.raises(ConfigError, match=r"c\.toml: safety: reach_preferred_m=2\.0 exceeds reach_radius_m=1\.0"):
+        config_from_dict({**base, "safety": {**safety, "reach_preferred_m": 2.0}}, source="c.toml")
+    with pytest.raises(ConfigError, match="track_axis_base must be a unit vector"):
+        config_from_dict({**base, "safety": {**safety, "track_axis_base": [0.0, 2.0, 0.0]}}, source="c.toml")
+    with pytest.raises(ConfigError, match=r"daemon\.token: String should have at least 16 characters"):
+        config_from_dict({**base, "daemon": {"host": "10.0.0.5", "token": "short"}}, source="c.toml")
+    config = config_from_dict({**base, "daemon": {"host": "10.0.0.5", "token": "0123456789abcdef"}})
+    assert config.daemon.token == "0123456789abcdef"
+    with pytest.raises(ConfigError, match=r"running jobs needs a \[safety\] table"):
+        safety_limits(config)

@@ -1,0 +1,496 @@
+"""The job runner against the protocol-level fakes (hardware in the loop, loopback only).
+
+A whole job on the fake FANUC (two captures from two carriage positions, merged) and on the fake UR5: the robot
+received exactly the planned poses (0.1 mm, 0.1 deg), the arc came on at each seam's start and went off at its end,
+the states followed the table (from the journal). A paused pass resumes where it stopped.
+Faults: protective stop and connection loss mid-seam, e-stop, camera timeout, track fault, no seam, a path out of
+reach (refused before anything moves for welding); each ends in fault with its reason, the arc off, the job
+journaled, and the next job runs after an operator's acknowledgement. A dry run moves nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import tomllib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from cell.cli import main
+from cell.config import CellConfig, config_from_dict
+from cell.factory import Cell, build_cell
+from cell.job import Job, job_from_text
+from cell.journal import Journal
+from cell.machine import CellState
+from cell.runner import CellFaulted, JobReport, JobRunner
+from perception.transforms import X_from_xyzwpr_mm_deg, rotation_angle_rad
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLES = REPO / "examples"
+
+STATES_OF_A_JOB = [
+    "homing",
+    "moving_to_capture",
+    "capturing",
+    "detecting",
+    "planning",
+    "awaiting_approval",
+    "welding",
+    "retracting",
+    "done",
+]
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def cell_config(tmp_path: Path, example: str, **changes: dict[str, Any]) -> CellConfig:
+    """An example config made fast for tests: free ports, quick moves, a short camera timeout; ``changes``
+    update whole tables (``safety={"reach_radius_m": 0.5}``)."""
+    data = tomllib.loads((EXAMPLES / example).read_text(encoding="utf-8"))
+    if data["robot"]["kind"] == "fake-fanuc":
+        data["robot"]["port"] = 0
+    data["robot"].update(speed_m_s=0.5, max_speed_m_s=0.5, accel_m_s2=1.0)
+    data["track"].update(port=0, speed_m_s=0.4, accel_m_s2=1.0)
+    data["camera"]["timeout_s"] = 1.0
+    data["safety"]["max_speed_m_s"] = 0.6
+    data["daemon"].update(journal=str(tmp_path / "journal.sqlite3"), status_image=str(tmp_path / "status.png"))
+    for table, values in changes.items():
+        data[table].update(values)
+    return config_from_dict(data, source=tmp_path / f"test-{example}")
+
+
+RIBS_CAPTURE = (
+    'xyz_m = [-0.29854, -0.36207, 0.36562]\nrotvec_rad = [-2.43288, -0.95895, -1.10208]\nprompts = "camera"\n'
+)
+
+
+def job_text(
+    *,
+    min_length_m: float = 0.02,
+    track_position_m: float = 0.0,
+    capture: str = RIBS_CAPTURE,
+    travel_speed_m_s: float = 0.25,
+    approval: bool = False,
+    second_capture_track_m: float | None = None,
+) -> str:
+    """The ribs job with fast welding (0.25 m/s travel) for tests; ``second_capture_track_m``: look again from the
+    same place in the fixture with the carriage there (the robot's base-frame pose makes up for it)."""
+    second = (
+        ""
+        if second_capture_track_m is None
+        else f"[[capture]]\ntrack_position_m = {second_capture_track_m}\n{capture}\n"
+    )
+    return (
+        f'workpiece = "ribs"\napproval = {str(approval).lower()}\nframe = "fixture"\n\n'
+        f"[[capture]]\ntrack_position_m = {track_position_m}\n{capture}\n{second}"
+        f"[welding]\ntravel_speed_m_s = {travel_speed_m_s}\napproach_speed_m_s = 0.3\nair_speed_m_s = 0.5\n"
+        "accel_m_s2 = 1.0\napproach_m = 0.03\nretract_m = 0.03\ntravel_angle_deg = 10.0\narc_output = 0\n\n"
+        f'[seams]\nkinds = ["linear"]\nmin_length_m = {min_length_m}\n'
+    )
+
+
+def make_job(text: str) -> Job:
+    return job_from_text(text, source="test-job.toml", base_dir=REPO)
+
+
+@dataclass
+class Rig:
+    config: CellConfig
+    cell: Cell
+    runner: JobRunner
+    journal: Journal
+
+    @property
+    def robot_fake(self) -> Any:
+        assert self.cell.simulators is not None
+        return self.cell.simulators.robot
+
+    @property
+    def track_fake(self) -> Any:
+        assert self.cell.simulators is not None
+        return self.cell.simulators.track
+
+
+def open_rig(config: CellConfig, tmp_path: Path) -> Rig:
+    cell = build_cell(config, start_simulators=True)
+    try:
+        cell.connect()
+        journal = Journal(tmp_path / "journal.sqlite3")
+    except BaseException:
+        cell.close()
+        raise
+    return Rig(config, cell, JobRunner(cell, journal=journal, watchdog_period_s=0.1), journal)
+
+
+def close_rig(rig: Rig) -> None:
+    rig.cell.close()
+    rig.journal.close()
+
+
+@pytest.fixture
+def fanuc(tmp_path: Path) -> Iterator[Rig]:
+    rig = open_rig(cell_config(tmp_path, "sim-cell-fanuc.toml"), tmp_path)
+    try:
+        yield rig
+    finally:
+        close_rig(rig)
+
+
+class DoutLog:
+    """Every digital output write the fake FANUC receives, with the tool position (mm) at that instant."""
+
+    def __init__(self, fake: Any) -> None:
+        self.writes: list[tuple[int, bool, np.ndarray]] = []
+        original = fake._cmd_write_dout
+
+        def record(msg: dict[str, Any]) -> dict[str, Any]:
+            reply: dict[str, Any] = original(msg)
+            if "ErrorID" not in reply:
+                self.writes.append((int(msg["PortNumber"]), msg["PortValue"] == "ON", fake._p_mm.copy()))
+            return reply
+
+        fake._cmd_write_dout = record  # the fake looks its handlers up on each packet
+
+
+def state_changes(journal: Journal, job_id: int) -> list[str]:
+    """The machine states a job went through (steps inside a state are left out)."""
+    return [e.to_state for e in journal.events(job_id) if e.from_state != e.to_state]
+
+
+def on_weld_pose(runner: JobRunner, pass_number: int, pose: int, action: Callable[[], None]) -> None:
+    """Call ``action`` (once) when travel pose ``pose`` of pass ``pass_number`` is reported done."""
+    fired = threading.Event()
+
+    def progress(kind: str, data: dict[str, Any]) -> None:
+        if kind == "weld" and data["pass"] == pass_number and data["pose"] >= pose and not fired.is_set():
+            fired.set()
+            action()
+
+    runner.on_progress = progress
+
+
+def on_state(runner: JobRunner, state: str, action: Callable[[], None]) -> None:
+    fired = threading.Event()
+
+    def progress(kind: str, data: dict[str, Any]) -> None:
+        if kind == "state" and data["state"] == state and not fired.is_set():
+            fired.set()
+            action()
+
+    runner.on_progress = progress
+
+
+def fanuc_arc_is_off(rig: Rig) -> bool:
+    return not rig.robot_fake.digital_output(1)  # arc_output 0 is DO[1]
+
+
+def assert_fault(rig: Rig, report: JobReport, *, words: tuple[str, ...], outcome: str = "fault") -> None:
+    assert report.state == "fault" and report.outcome == outcome, report
+    assert report.reason is not None
+    for word in words:
+        assert word in report.reason, (word, report.reason)
+    record = rig.journal.job(report.job_id)
+    assert record.state == "failed" and record.error == report.reason
+    assert record.report is not None and record.report["outcome"] == outcome
+    assert state_changes(rig.journal, report.job_id)[-1] == "fault"
+
+
+def follow_up_job_runs(rig: Rig, *, clear: Callable[[], None] | None = None, weld: bool = True) -> JobReport:
+    """After a fault: the cause is cleared, an operator acknowledges, and a job runs: it welds the long seams
+    (``weld``) or, quicker, homes, captures, plans and validates a path that the operator then declines."""
+    runner = rig.runner
+    runner.on_progress = None
+    with pytest.raises(CellFaulted, match="acknowledge"):
+        runner.run(make_job(job_text()))
+    if clear is not None:
+        clear()
+    assert runner.acknowledge("Ada")
+    assert runner.machine.state is CellState.IDLE
+    if weld:
+        report = runner.run(make_job(job_text(min_length_m=0.1)))
+        assert (report.state, report.outcome) == ("done", "welded"), report
+        assert report.seams_welded == report.seams_planned >= 2
+    else:
+        report = runner.run(make_job(job_text(approval=True)), approve=lambda path: None)
+        assert (report.state, report.outcome) == ("idle", "rejected"), report
+        assert report.seams_planned >= 8 and report.seams_welded == 0 and report.poses_sent == 2
+        assert rig.journal.job(report.job_id).state == "cancelled"
+    assert fanuc_arc_is_off(rig)
+    return report
+
+
+def commanded_poses(path_poses: list[np.ndarray], got: list[np.ndarray]) -> None:
+    assert len(got) == len(path_poses)
+    for k, (X_want, X_got) in enumerate(zip(path_poses, got, strict=True)):
+        dist_mm = float(np.linalg.norm(X_want[:3, 3] - X_got[:3, 3])) * 1e3
+        angle_deg = math.degrees(rotation_angle_rad(X_want, X_got))
+        assert dist_mm <= 0.1 and angle_deg <= 0.1, (k, dist_mm, angle_deg)
+
+
+def expected_poses(rig: Rig, job: Job) -> list[np.ndarray]:
+    """Home, each capture pose, every waypoint of the planned path, home: what the robot must have been sent."""
+    data = rig.runner.current
+    assert data is not None and data.path is not None
+    home = rig.config.home.pose
+    assert home is not None
+    poses = [home.X_base_tool()]
+    poses += [rig.runner.capture_pose(job, i) for i in range(len(job.captures))]
+    poses += [w.X_base_tcp for _i, _p, w in data.path.waypoints()]
+    poses.append(home.X_base_tool())
+    return poses
+
+
+# ---------------------------------------------------------------------------------------------- whole jobs
+@pytest.mark.timeout(60)
+def test_a_job_on_the_fake_fanuc_welds_every_planned_pose_with_the_arc_on_between_the_seam_ends(fanuc: Rig) -> None:
+    dout = DoutLog(fanuc.robot_fake)
+    job = make_job(job_text(second_capture_track_m=0.05))
+    report = fanuc.runner.run(job)
+
+    assert (report.state, report.outcome, report.reason) == ("done", "welded", None)
+    data = fanuc.runner.current
+    assert data is not None and data.path is not None
+    path = data.path
+    # two captures of the same view from two carriage positions: the seams met in the world frame and merged
+    assert [round(t, 4) for t, _capture in data.captures] == [0.0, 0.05]
+    X_0, X_1 = (capture.X_base_tool for _t, capture in data.captures)
+    assert X_0 is not None and X_1 is not None
+    assert np.allclose(X_1[:3, 3] - X_0[:3, 3], [0.0, -0.05, 0.0], atol=1e-4)
+    assert data.results[0] is not None and data.results[1] is not None
+    assert report.seams_found <= len(data.results[0].seams) + len(data.results[1].seams) - 6
+    assert sum(len({k for k, _id in s.sources}) == 2 for s in data.seams) >= 6
+    assert report.seams_found >= 8 and report.seams_planned == len(path.passes) >= 8
+    assert report.seams_welded == len(path.passes)
+    want = expected_poses(fanuc, job)
+    assert report.poses_sent == len(want)
+    records = fanuc.robot_fake.accepted_records()
+    commanded_poses(want, [X_from_xyzwpr_mm_deg(r.xyzwpr_mm_deg) for r in records])
+
+    # arc: off while homing, then on exactly at each pass's arc-on pose and off at its arc-off pose
+    # (and once more, belt and braces, before the robot goes home)
+    expected = [(1, False)] + [(1, True), (1, False)] * len(path.passes) + [(1, False)]
+    assert [(port, on) for port, on, _p in dout.writes] == expected
+    for k, p in enumerate(path.passes):
+        at_on, at_off = dout.writes[1 + 2 * k][2], dout.writes[2 + 2 * k][2]
+        assert np.linalg.norm(at_on - p.arc_on.X_base_tcp[:3, 3] * 1e3) <= 0.1
+        assert np.linalg.norm(at_off - p.arc_off.X_base_tcp[:3, 3] * 1e3) <= 0.1
+    assert fanuc_arc_is_off(fanuc)
+    assert report.arc_time_s == pytest.approx(sum(p.length_m for p in path.passes) / 0.25, rel=0.3)
+
+    twice = [*STATES_OF_A_JOB[:3], "moving_to_capture", "capturing", *STATES_OF_A_JOB[3:]]
+    assert state_changes(fanuc.journal, report.job_id) == twice
+    steps = [e.reason for e in fanuc.journal.events(report.job_id) if e.from_state == e.to_state == "welding"]
+    assert sum("arc on" in s for s in steps) == sum("arc off" in s for s in steps) == len(path.passes)
+    record = fanuc.journal.job(report.job_id)
+    assert record.state == "done" and record.report == report.to_dict()
+    assert set(report.cycle_s) == {"capture", "detection", "planning", "motion", "total"}
+    assert sum(report.cycle_s[k] for k in ("capture", "detection", "planning", "motion")) <= report.cycle_s["total"]
+
+
+@pytest.mark.timeout(90)
+def test_a_job_on_the_fake_ur5_welds_every_planned_pose_with_the_arc_between_the_seam_ends(tmp_path: Path) -> None:
+    rig = open_rig(cell_config(tmp_path, "sim-cell.toml"), tmp_path)
+    try:
+        job = make_job(job_text(min_length_m=0.1))
+        report = rig.runner.run(job)
+        assert (report.state, report.outcome) == ("done", "welded"), report
+        data = rig.runner.current
+        assert data is not None and data.path is not None
+        path = data.path
+        assert report.seams_welded == len(path.passes) >= 3
+        fake = rig.robot_fake
+        commanded_poses(expected_poses(rig, job), fake.commanded_targets())
+        # the order of the commands: approach, arc-on pose, arc on, travel path, arc off, retract
+        kinds = [e["kind"] for e in fake.events() if e["kind"] in ("move_linear", "path", "digital_output")]
+        per_pass = ["move_linear", "move_linear", "digital_output", "path", "digital_output", "move_linear"]
+        home_and_capture = ["digital_output", "move_linear", "move_linear"]
+        assert kinds == [*home_and_capture, *per_pass * len(path.passes), "digital_output", "move_linear"]
+        assert fake.io_changes() == [(0, False)] + [(0, True), (0, False)] * len(path.passes) + [(0, False)]
+        assert fake.snapshot()["digital_outputs"][0] is False
+        assert state_changes(rig.journal, report.job_id) == STATES_OF_A_JOB
+    finally:
+        close_rig(rig)
+
+
+@pytest.mark.timeout(60)
+def test_a_pass_paused_mid_seam_resumes_where_it_stopped_with_the_arc_back_on(fanuc: Rig) -> None:
+    dout = DoutLog(fanuc.robot_fake)
+    machine = fanuc.runner.machine
+
+    def pause_then_resume() -> None:
+        machine.request_pause("operator pause")
+        assert machine.state is CellState.PAUSED and fanuc_arc_is_off(fanuc)
+        assert machine.resume()
+
+    on_weld_pose(fanuc.runner, 1, 2, lambda: threading.Thread(target=pause_then_resume).start())
+    report = fanuc.runner.run(make_job(job_text(min_length_m=0.1)))
+    assert (report.state, report.outcome) == ("done", "welded"), report
+    data = fanuc.runner.current
+    assert data is not None and data.path is not None
+    n = len(data.path.passes)
+    assert report.seams_welded == n
+    changes = state_changes(fanuc.journal, report.job_id)
+    assert changes[changes.index("welding") :][:3] == ["welding", "paused", "welding"]
+    resumed = [e.reason for e in fanuc.journal.events(report.job_id) if "resuming at travel pose" in e.reason]
+    assert len(resumed) == 1
+    start = int(resumed[0].rsplit(" ", 1)[1])
+    first = data.path.passes[0]
+    assert 2 <= start < len(first.travel) - 1
+    # arc: on at the arc-on pose, off at the pause, on again at the travel pose the pass resumed from
+    ons = [p for _port, on, p in dout.writes if on]
+    assert len(ons) == n + 1
+    assert np.linalg.norm(ons[0] - first.arc_on.X_base_tcp[:3, 3] * 1e3) <= 0.1
+    assert np.linalg.norm(ons[1] - first.travel[start].X_base_tcp[:3, 3] * 1e3) <= 0.1
+    assert fanuc_arc_is_off(fanuc)
+
+
+@pytest.mark.timeout(30)
+def test_a_dry_run_plans_and_validates_and_moves_nothing(fanuc: Rig) -> None:
+    job = make_job(job_text())
+    X_capture = fanuc.runner.capture_pose(job, 0)
+    fanuc.cell.robot.move_linear(X_capture, speed_m_s=0.5, accel_m_s2=1.0)  # park where the job looks from
+    dout = DoutLog(fanuc.robot_fake)
+    before = len(fanuc.robot_fake.records())
+    report = fanuc.runner.run(job, dry_run=True)
+    assert (report.state, report.outcome, report.dry_run) == ("idle", "dry_run", True)
+    assert report.seams_planned >= 8 and report.seams_welded == 0 and report.poses_sent == 0
+    assert report.path is not None and len(report.path["passes"]) == report.seams_planned
+    assert len(fanuc.robot_fake.records()) == before and dout.writes == []
+    assert fanuc.journal.job(report.job_id).state == "cancelled"
+
+
+# ---------------------------------------------------------------------------------------------- faults
+@pytest.mark.timeout(60)
+def test_a_protective_stop_mid_seam_faults_with_the_arc_off_and_the_next_job_runs_after_acknowledgement(
+    fanuc: Rig,
+) -> None:
+    on_weld_pose(fanuc.runner, 1, 2, lambda: fanuc.robot_fake.inject("protective_stop"))
+    report = fanuc.runner.run(make_job(job_text(min_length_m=0.1)))
+    assert_fault(fanuc, report, words=("protective stop", "welding"))
+    assert report.seams_welded == 0 and fanuc_arc_is_off(fanuc)
+    assert report.arc_time_s > 0
+    follow_up_job_runs(fanuc, clear=fanuc.robot_fake.clear_faults)
+
+
+@pytest.mark.timeout(60)
+def test_an_emergency_stop_faults_and_the_next_job_runs_once_released_and_acknowledged(fanuc: Rig) -> None:
+    on_weld_pose(fanuc.runner, 1, 1, lambda: fanuc.robot_fake.inject("emergency_stop"))
+    report = fanuc.runner.run(make_job(job_text(min_length_m=0.1)))
+    assert_fault(fanuc, report, words=("emergency stop",))
+    assert fanuc_arc_is_off(fanuc)
+    with pytest.raises(CellFaulted):
+        fanuc.runner.run(make_job(job_text()))
+    assert not fanuc.runner.acknowledge("Ada")  # the e-stop is still pressed: clearing fails, still in fault
+    assert fanuc.runner.machine.state is CellState.FAULT
+    follow_up_job_runs(fanuc, clear=fanuc.robot_fake.clear_faults, weld=False)
+
+
+@pytest.mark.timeout(60)
+def test_a_camera_timeout_faults_before_anything_is_welded(fanuc: Rig) -> None:
+    camera: Any = fanuc.cell.camera
+    camera.inject("frame_timeout")
+    report = fanuc.runner.run(make_job(job_text()))
+    assert_fault(fanuc, report, words=("CameraTimeout", "capturing"))
+    assert report.seams_welded == 0 and report.seams_found == 0 and fanuc_arc_is_off(fanuc)
+    follow_up_job_runs(fanuc, clear=camera.clear_faults, weld=False)
+
+
+@pytest.mark.timeout(60)
+def test_a_track_fault_faults_the_job_and_is_reset_on_acknowledgement(fanuc: Rig) -> None:
+    on_state(fanuc.runner, "moving_to_capture", lambda: fanuc.track_fake.inject("track_fault", code=7))
+    report = fanuc.runner.run(make_job(job_text(track_position_m=0.05)))
+    assert_fault(fanuc, report, words=("track", "code 7"))
+    assert report.seams_welded == 0 and fanuc_arc_is_off(fanuc)
+    follow_up_job_runs(fanuc, weld=False)  # the acknowledgement resets the drive's latched fault
+
+
+@pytest.mark.timeout(60)
+def test_a_connection_lost_while_streaming_faults_and_the_arc_is_off_once_reconnected(fanuc: Rig) -> None:
+    on_weld_pose(fanuc.runner, 1, 2, lambda: fanuc.robot_fake.inject("drop_connection"))
+    report = fanuc.runner.run(make_job(job_text(min_length_m=0.1)))
+    assert_fault(fanuc, report, words=("ConnectionLost",))
+    assert report.seams_welded == 0
+    assert not fanuc.runner.acknowledge("Ada")  # the controller still refuses connections
+    follow_up_job_runs(fanuc, clear=fanuc.robot_fake.clear_faults, weld=False)
+    assert fanuc_arc_is_off(fanuc)
+
+
+@pytest.mark.timeout(60)
+def test_no_seam_found_faults_with_the_reason_and_nothing_is_welded(fanuc: Rig) -> None:
+    # the camera looks at the bare table beside the plate
+    away = 'xyzwpr_mm_deg = [0.0, 550.0, 300.0, 180.0, 0.0, 0.0]\nprompts = "automatic"\n'
+    report = fanuc.runner.run(make_job(job_text(capture=away)))
+    assert_fault(fanuc, report, words=("NoSeamFound",), outcome="no_seam")
+    assert report.seams_found == 0 and report.poses_sent == 2 and fanuc_arc_is_off(fanuc)
+    follow_up_job_runs(fanuc, weld=False)
+
+
+@pytest.mark.timeout(60)
+def test_a_path_out_of_reach_is_refused_before_the_torch_moves(tmp_path: Path) -> None:
+    # a reach sphere that holds the capture pose but none of the seams
+    config = cell_config(
+        tmp_path,
+        "sim-cell-fanuc.toml",
+        safety={"reach_centre_base": [1.6, 0.0, 0.3], "reach_radius_m": 0.75, "reach_preferred_m": 0.5},
+    )
+    rig = open_rig(config, tmp_path)
+    try:
+        dout = DoutLog(rig.robot_fake)
+        report = rig.runner.run(make_job(job_text()))
+        assert_fault(rig, report, words=("SafetyViolation", "reach radius"), outcome="refused")
+        assert report.seams_found >= 8 and report.seams_planned == 0 and report.poses_sent == 2
+        assert len(rig.robot_fake.accepted_records()) == 2  # home and the capture pose: no weld motion
+        assert dout.writes and not any(on for _port, on, _p in dout.writes)  # the arc was never switched on
+    finally:
+        close_rig(rig)
+
+
+@pytest.mark.timeout(60)
+def test_weldcell_run_exits_3_without_a_seam_and_2_for_a_bad_job(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "cell.toml"
+    text = (EXAMPLES / "sim-cell-fanuc.toml").read_text(encoding="utf-8")
+    text = text.replace("port = 16001", "port = 0").replace("port = 5020", "port = 0")
+    text = text.replace("speed_m_s = 0.1                # default tool speed", "speed_m_s = 0.5")
+    text = text.replace('journal = "../out/weldcell-fanuc-journal.sqlite3"', f'journal = "{tmp_path / "j.sqlite3"}"')
+    config.write_text(text, encoding="utf-8")
+    away = 'xyzwpr_mm_deg = [0.0, 550.0, 300.0, 180.0, 0.0, 0.0]\nprompts = "automatic"\n'
+    job = tmp_path / "job.toml"
+    job.write_text(job_text(capture=away), encoding="utf-8")
+    assert main(["run", str(job), "--config", str(config), "--json"]) == 3
+    out, err = capsys.readouterr()
+    report = json.loads(out)
+    assert (report["state"], report["outcome"], report["seams_found"], report["seams_welded"]) == (
+        "fault",
+        "no_seam",
+        0,
+        0,
+    )
+    assert set(report["cycle_s"]) == {"capture", "detection", "planning", "motion", "total"}
+    assert "weldcell run: no seam found: " in err
+    with Journal(tmp_path / "j.sqlite3") as journal:
+        assert journal.job(report["job_id"]).state == "failed"
+    bad = tmp_path / "bad.toml"
+    bad.write_text(job_text().replace("[welding]", "[welding]\ncurrent_a = 180"), encoding="utf-8")
+    assert main(["run", str(bad), "--config", str(config)]) == 2
+    assert f"{bad}: welding.current_a: unknown key" in capsys.readouterr().err
+
+
+@pytest.mark.timeout(60)
+def test_ten_dry_runs_back_to_back_leave_no_thread_behind_and_are_all_journaled(fanuc: Rig) -> None:
+    # the reduced soak (scripts/soak.py runs 100 and prints the memory use)
+    job = make_job(job_text())
+    fanuc.cell.robot.move_linear(fanuc.runner.capture_pose(job, 0), speed_m_s=0.5, accel_m_s2=1.0)
+    threads = threading.active_count()
+    reports = [fanuc.runner.run(job, dry_run=True) for _ in range(10)]
+    assert [r.outcome for r in reports] == ["dry_run"] * 10
+    assert all(r.path is not None and r.seams_planned >= 3 and r.poses_sent == 0 for r in reports)
+    assert threading.active_count() == threads
+    assert [j.state for j in fanuc.journal.recent_jobs(20)] == ["cancelled"] * 10
+    assert fanuc.runner.machine.state is CellState.IDLE
