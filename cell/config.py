@@ -671,7 +671,7 @@ def config_from_dict(data: dict[str, Any], *, source: str | os.PathLike[str] | N
         config = CellConfig.model_validate(data)
     except ValidationError as err:
         where = f"{source}: " if source is not None else ""
-        problems = "; ".join(_describe(e) for e in err.errors(include_url=False))
+        problems = "; ".join(describe_validation_error(e, CellConfig) for e in err.errors(include_url=False))
         raise ConfigError(f"{where}{problems}") from err
     config._source = Path(source) if source is not None else None
     return config
@@ -698,14 +698,15 @@ def _toml_context(err: tomllib.TOMLDecodeError, text: str) -> str:
     return f"{msg}; {where}(line {lineno}: {line!r})"
 
 
-def _describe(error: Any) -> str:
+def describe_validation_error(error: Any, root: type[BaseModel]) -> str:
+    """One pydantic error as 'where: what' for a TOML file whose schema is ``root`` (cell or job)."""
     loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in error["loc"]).replace(".[", "[")
     kind = error["type"]
     msg = str(error["msg"])
     if msg.startswith("Value error, "):
         msg = msg[len("Value error, ") :]
     if kind == "extra_forbidden":
-        allowed = _allowed_keys(error["loc"][:-1])
+        allowed = _allowed_keys(error["loc"][:-1], root)
         hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
         return f"{loc}: unknown key{hint}"
     if kind == "missing":
@@ -721,9 +722,11 @@ def _describe(error: Any) -> str:
     return f"{loc or 'file'}: {msg}{shown}"
 
 
-def _allowed_keys(loc: tuple[Any, ...]) -> list[str]:
-    model: type[BaseModel] = CellConfig
+def _allowed_keys(loc: tuple[Any, ...], root: type[BaseModel]) -> list[str]:
+    model = root
     for part in loc:
+        if isinstance(part, int):
+            continue  # an index into a list of tables
         field = model.model_fields.get(str(part))
         if field is None:
             return []
@@ -738,6 +741,7 @@ def _model_of(annotation: Any) -> type[BaseModel] | None:
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
         return annotation
     for arg in getattr(annotation, "__args__", ()):
-        if isinstance(arg, type) and issubclass(arg, BaseModel):
-            return arg
+        inner = _model_of(arg)
+        if inner is not None:
+            return inner
     return None

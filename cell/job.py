@@ -37,9 +37,16 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 
-from cell.config import DetectionConfig, PoseConfig, Section, WeldingConfig, _toml_context
+from cell.config import (
+    DetectionConfig,
+    PoseConfig,
+    Section,
+    WeldingConfig,
+    _toml_context,
+    describe_validation_error,
+)
 from cell.errors import ConfigError
 from cell.planning import SeamFilter, WeldParams
 
@@ -155,7 +162,7 @@ def job_from_text(text: str, *, source: str = "<job>", base_dir: str | os.PathLi
     try:
         spec = JobFile.model_validate(data)
     except ValidationError as err:
-        problems = "; ".join(_describe(e) for e in err.errors(include_url=False))
+        problems = "; ".join(describe_validation_error(e, JobFile) for e in err.errors(include_url=False))
         raise ConfigError(f"{source}: {problems}") from err
     job = Job(spec, source, Path(base_dir) if base_dir is not None else Path.cwd(), text)
     for i, _capture in enumerate(job.captures):
@@ -194,45 +201,3 @@ def detect_params(detection: DetectionConfig) -> Any:
         voxel_m=detection.voxel_m,
         method=detection.method,
     )
-
-
-def _describe(error: Any) -> str:
-    loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in error["loc"]).replace(".[", "[")
-    kind = error["type"]
-    msg = str(error["msg"])
-    if msg.startswith("Value error, "):
-        msg = msg[len("Value error, ") :]
-    if kind == "extra_forbidden":
-        allowed = _allowed_keys(error["loc"][:-1])
-        hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
-        return f"{loc}: unknown key{hint}"
-    if kind == "missing":
-        return f"{loc}: required key is missing"
-    got = error.get("input")
-    shown = "" if isinstance(got, dict) or kind.startswith("value_error") else f" (got {got!r})"
-    return f"{loc or 'file'}: {msg}{shown}"
-
-
-def _allowed_keys(loc: tuple[Any, ...]) -> list[str]:
-    model: type[BaseModel] = JobFile
-    for part in loc:
-        if isinstance(part, int):
-            continue
-        field = model.model_fields.get(str(part))
-        if field is None:
-            return []
-        inner = _model_of(field.annotation)
-        if inner is None:
-            return []
-        model = inner
-    return list(model.model_fields)
-
-
-def _model_of(annotation: Any) -> type[BaseModel] | None:
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation
-    for arg in getattr(annotation, "__args__", ()):
-        inner = _model_of(arg)
-        if inner is not None:
-            return inner
-    return None
