@@ -16,6 +16,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any, Literal
 
 import numpy as np
@@ -252,7 +253,8 @@ def _butt_seams(
             band_pts = organized[band].astype(np.float64)
             band_lab = label_image[band]
         pa, pb = band_pts[band_lab == i], band_pts[band_lab == j]
-        res = butt_from_surfaces(pa, pb, _scanlines(organized, band, label_image, (i, j)), params.seams, viewpoint)
+        scanlines = partial(_scanlines, organized, band, label_image, (i, j))
+        res = butt_from_surfaces(pa, pb, scanlines, params.seams, viewpoint)
         if res is None:
             continue
         ends, n, rms, _gap = res

@@ -7,6 +7,7 @@ camera (the side a torch comes from).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -761,14 +762,15 @@ def _fit_line_2d(p: FloatArray, gate: float) -> tuple[FloatArray, FloatArray, fl
 def butt_from_surfaces(
     pa: FloatArray,
     pb: FloatArray,
-    scanlines: list[FloatArray],
+    scanlines: list[FloatArray] | Callable[[], list[FloatArray]],
     params: SeamParams,
     viewpoint: FloatArray,
 ) -> tuple[FloatArray, FloatArray, float, float] | None:
     """A butt joint between two surfaces: ``pa``, ``pb`` are the points of the two masks near where they
     meet; ``scanlines`` are the valid points of each image row (or column) crossing the joint, in
-    order (masks are imprecise right at a gap, so the edges are traced on every point). Both surfaces
-    must lie on one plane, and a real gap must separate them.
+    order, or a callable giving them (built only once the planes say it may be a butt joint; masks are
+    imprecise right at a gap, so the edges are traced on every point). Both surfaces must lie on one
+    plane, and a real gap must separate them.
 
     On each scanline the gap is the widest step between consecutive top-surface samples near the joint
     (one scanline, one last sample per plate: no maximum over noisy rows, which would be biased).
@@ -805,6 +807,8 @@ def butt_from_surfaces(
     if (qb.mean(axis=0) - qa.mean(axis=0)) @ across < 0:
         across = -across
     sigma = max(rms, 1e-4)
+    if callable(scanlines):
+        scanlines = scanlines()
     rows = []
     for line_pts in scanlines:
         # points stay in pixel order: the last pixel on each plate is chosen by where it is in the
