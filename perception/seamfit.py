@@ -432,7 +432,7 @@ def refine_linear(
     # behind it. Refinement may have settled on a different junction than the one classified, so check
     pts = full.points[idx]
     rel = pts - center
-    dist_line = np.linalg.norm(rel - np.outer(rel @ direction, direction), axis=1)
+    _, dist_line = line_coordinates(pts, center, direction)
     ring = (dist_line > exclude) & (dist_line < R)
     if (ring & in_a).sum() < 10 or (ring & in_b).sum() < 10:
         return None
@@ -449,6 +449,13 @@ def refine_linear(
         return None
     ends = segments[0] if len(segments) == 1 else np.array(segments)
     return ends, na, nb, max(rms_a, rms_b)
+
+
+def line_coordinates(pts: FloatArray, center: FloatArray, direction: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """(N,) position along a line through ``center`` with unit ``direction``, and (N,) distance from it."""
+    rel = pts - center
+    t = rel @ direction
+    return t, np.linalg.norm(rel - np.outer(t, direction), axis=1)
 
 
 def _segment(center: FloatArray, direction: FloatArray, window: tuple[float, float]) -> FloatArray:
@@ -468,9 +475,7 @@ def _fit_plane_pair(
     viewpoint: FloatArray,
     max_points: int = 0,
 ) -> tuple[FloatArray, FloatArray, float, FloatArray, FloatArray, float] | None:
-    rel = pts - center
-    t = rel @ direction
-    dist_line = np.linalg.norm(rel - np.outer(t, direction), axis=1)
+    t, dist_line = line_coordinates(pts, center, direction)
     use = (dist_line > exclude) & (dist_line < band) & (t > t_range[0]) & (t < t_range[1])
     sel_a, sel_b = np.flatnonzero(use & in_a), np.flatnonzero(use & in_b)
     if len(sel_a) < 10 or len(sel_b) < 10:
@@ -529,9 +534,7 @@ def _runs_for(
 ) -> list[tuple[float, float]]:
     """Only points clearly on one face count (beyond the exclusion zone, so the other face's plane cannot
     claim them). The seam runs where both faces are seen; a hole longer than ``max_hole_m`` splits it."""
-    rel = both - center
-    t = rel @ direction
-    dist_line = np.linalg.norm(rel - np.outer(t, direction), axis=1)
+    t, dist_line = line_coordinates(both, center, direction)
     near = (dist_line > max(0.0015, exclude)) & (dist_line < max(0.006, exclude + 0.004))
     ta, tb = t[near & in_a], t[near & in_b]
     if len(ta) < 5 or len(tb) < 5:
