@@ -35,6 +35,7 @@ from perception.transforms import X_from_xyzwpr_mm_deg, make_X, rotation_angle_r
 from sim_fakes.fake_fanuc import DEFAULT_START_XYZWPR_MM_DEG, FakeFanucController
 from sim_fakes.faults import FaultInjectable
 from tests.drivers.robot_contract import RobotContract, assert_pose_close, offset
+from tests.leftovers import assert_no_threads_left
 
 OUR_THREAD_PREFIXES = ("fanuc-rmi", "fake-fanuc")
 
@@ -42,13 +43,7 @@ OUR_THREAD_PREFIXES = ("fanuc-rmi", "fake-fanuc")
 @pytest.fixture(autouse=True)
 def no_leftover_threads() -> Iterator[None]:
     yield
-    deadline = time.monotonic() + 2.0
-    while True:
-        leftover = [t.name for t in threading.enumerate() if t.name.startswith(OUR_THREAD_PREFIXES)]
-        if not leftover or time.monotonic() > deadline:
-            break
-        time.sleep(0.01)
-    assert not leftover, f"threads left running after the test: {leftover}"
+    assert_no_threads_left(OUR_THREAD_PREFIXES)
 
 
 @pytest.fixture

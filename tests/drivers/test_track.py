@@ -4,7 +4,6 @@ and the register map as the drive enforces it."""
 from __future__ import annotations
 
 import socket
-import threading
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -41,6 +40,7 @@ from tests.drivers.track_contract import (
     START_M,
     TrackContract,
 )
+from tests.leftovers import assert_no_threads_left
 
 COUNTS_PER_M = 100_000
 OUR_THREAD_PREFIXES = ("fake-track", "contract-watcher")
@@ -49,13 +49,7 @@ OUR_THREAD_PREFIXES = ("fake-track", "contract-watcher")
 @pytest.fixture(autouse=True)
 def no_leftover_threads() -> Iterator[None]:
     yield
-    deadline = time.monotonic() + 2.0
-    while True:
-        leftover = [t.name for t in threading.enumerate() if t.name.startswith(OUR_THREAD_PREFIXES)]
-        if not leftover or time.monotonic() > deadline:
-            break
-        time.sleep(0.01)
-    assert not leftover, f"threads left running after the test: {leftover}"
+    assert_no_threads_left(OUR_THREAD_PREFIXES)
 
 
 @pytest.fixture

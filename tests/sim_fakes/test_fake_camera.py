@@ -25,6 +25,7 @@ from sim_fakes.faults import FaultInjectable
 from sim_fakes.render import X_BASE_WORLD, X_TOOL_CAMERA, render
 from sim_fakes.scenes import get_scene, with_resolution
 from tests.drivers.camera_contract import CameraContract, assert_valid_capture
+from tests.leftovers import assert_no_threads_left
 
 X_BASE_TOOL_A = X_from_xyzwpr_mm_deg((500.0, 0.0, 400.0, 180.0, 0.0, 0.0))  # the fake FANUC's start pose
 # The centre of the top face of the ribs scene's bar2 (x 0.05, y 0.07, 40 x 120 mm, top at 12 + 30 mm).
@@ -37,13 +38,7 @@ OUR_THREAD_PREFIXES = ("fake-track", "fake-fanuc", "fanuc-rmi")
 @pytest.fixture(autouse=True)
 def no_leftover_threads() -> Iterator[None]:
     yield
-    deadline = time.monotonic() + 2.0
-    while True:
-        leftover = [t.name for t in threading.enumerate() if t.name.startswith(OUR_THREAD_PREFIXES)]
-        if not leftover or time.monotonic() > deadline:
-            break
-        time.sleep(0.01)
-    assert not leftover, f"threads left running after the test: {leftover}"
+    assert_no_threads_left(OUR_THREAD_PREFIXES)
 
 
 def expected_X_world_camera(X_base_tool: np.ndarray, track_m: float) -> np.ndarray:
