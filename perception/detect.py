@@ -562,13 +562,11 @@ def _finish(
             # short pieces of a curved junction look straight to the coarse fit; the plane pair then
             # fails, but cross-section tracking follows the curve from the piece
             return _curve_fallback(full, c, labs, params, viewpoint) if ra and rb else []
-        ends, n_a, n_b, r = res_l
-        pieces = ends.reshape(-1, 2, 3)
         return [
             SeamGeometry(
                 "linear",
                 "fillet",
-                e,
+                ends,
                 np.tile(n_a, (2, 1)),
                 np.tile(n_b, (2, 1)),
                 (ra[0] if ra else -1, rb[0] if rb else -1),
@@ -576,7 +574,7 @@ def _finish(
                 c.support,
                 r,
             )
-            for e in pieces
+            for ends, n_a, n_b, r in res_l
         ]
     res_c = refine_curve(full, ra, rb, line, sp, viewpoint)
     if res_c is None:

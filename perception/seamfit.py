@@ -348,7 +348,7 @@ def refine_linear(
     viewpoint: FloatArray,
     *,
     seed_labels: tuple[int, int] | None = None,
-) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
+) -> list[tuple[FloatArray, FloatArray, FloatArray, float]] | None:
     """Intersect planes fitted to the full-resolution points of both surfaces near the seam.
 
     1. Seed: the regions' points near the coarse line give the first plane pair (or, with
@@ -358,8 +358,9 @@ def refine_linear(
        seam's ends (where a third face meets it) are left out, the planes are refitted and intersected.
     3. Track: while both faces still support the line at an end of the search window, the window grows
        along the line, so a seam is found whole even when region growing saw only a piece of it.
-    Returns the end points ((2, 3), or (K, 2, 3) when an occluder splits the seam), both outward
-    normals and the plane-fit RMS; None when a surface has too few points.
+    4. A seam split by a hole (an occluder, or two parts in line) is refitted piece by piece.
+    Returns one (end points (2, 3), outward normal a, outward normal b, plane-fit RMS) per piece; None when
+    a surface has too few points.
     """
     p0, p1 = line[0], line[-1]
     d = (p1 - p0) / np.linalg.norm(p1 - p0)
@@ -440,15 +441,66 @@ def refine_linear(
     side_b = float(np.median(rel[ring & in_b] @ na))
     if side_a <= 0.5 * exclude or side_b <= 0.5 * exclude:
         return None
-    segments = []
-    for lo, hi in runs:
+    if len(runs) > 1:
+        # a hole split the seam: the pieces may be different parts whose faces are only nearly in line
+        # (two stiffeners' faces a few mm apart), and one plane pair across both would tilt each piece
+        pieces = [_refit_piece(full, idx, in_a, in_b, center, direction, run, exclude, params, viewpoint, seed_labels)
+                  for run in runs]  # fmt: skip
+    else:
+        pieces = [(center, direction, runs[0], na, nb, max(rms_a, rms_b))]
+    out: list[tuple[FloatArray, FloatArray, FloatArray, float]] = []
+    for piece in pieces:
+        if piece is None:
+            continue
+        c_k, d_k, (lo, hi), na_k, nb_k, rms_k = piece
         lo, hi = lo + params.end_trim_m, hi - params.end_trim_m
         if hi - lo >= params.min_length_m:
-            segments.append(np.array([center + lo * direction, center + hi * direction]))
-    if not segments:
-        return None
-    ends = segments[0] if len(segments) == 1 else np.array(segments)
-    return ends, na, nb, max(rms_a, rms_b)
+            out.append((np.array([c_k + lo * d_k, c_k + hi * d_k]), na_k, nb_k, rms_k))
+    return out or None
+
+
+def _refit_piece(
+    full: FullRes,
+    idx: NDArray[np.int64],
+    in_a: NDArray[np.bool_],
+    in_b: NDArray[np.bool_],
+    center: FloatArray,
+    direction: FloatArray,
+    run: tuple[float, float],
+    exclude: float,
+    params: SeamParams,
+    viewpoint: FloatArray,
+    seed_labels: tuple[int, int] | None,
+) -> tuple[FloatArray, FloatArray, tuple[float, float], FloatArray, FloatArray, float] | None:
+    """Fit the plane pair again on one piece's own points (its run along the line), and measure its run on
+    the new line. Returns (point on the line, direction, (lo, hi) along it, normals, RMS) or None."""
+    pts = full.points[idx]
+    R = params.refine_band_m
+    lo, hi = run
+    for _ in range(2):
+        margin = max(0.003, 1.5 * exclude)
+        t_range = (lo + margin, hi - margin) if hi - lo > 4 * margin else (lo, hi)
+        fit = _fit_plane_pair(pts, in_a, in_b, center, direction, exclude, R, t_range, params, viewpoint)
+        if fit is None:
+            return None
+        ca, na, rms_a, cb, nb, rms_b = fit
+        new_center, new_dir = plane_intersection(ca, na, cb, nb, center + 0.5 * (lo + hi) * direction)
+        if new_dir @ direction < 0:
+            new_dir = -new_dir
+        in_a, in_b = _membership(full, idx, pts, ca, na, rms_a, cb, nb, rms_b, params, seed_labels)
+        # the ends are measured again on the new line, within the piece's stretch: a better line may
+        # shorten a piece, but not lengthen it by more than a bin (past a corner, flying pixels hang
+        # near a face's plane)
+        t_new, _ = line_coordinates(pts, new_center, new_dir)
+        t_lo = float((center + lo * direction - new_center) @ new_dir) - params.support_bin_m
+        t_hi = float((center + hi * direction - new_center) @ new_dir) + params.support_bin_m
+        near = (t_new > t_lo) & (t_new < t_hi)
+        runs = _runs_for(pts, in_a & near, in_b & near, new_center, new_dir, exclude, params)
+        if not runs:
+            return None
+        center, direction = new_center, new_dir
+        lo, hi = max(runs[0][0], t_lo), min(runs[-1][1], t_hi)
+    return center, direction, (lo, hi), na, nb, max(rms_a, rms_b)
 
 
 def line_coordinates(pts: FloatArray, center: FloatArray, direction: FloatArray) -> tuple[FloatArray, FloatArray]:
