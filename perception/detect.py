@@ -207,14 +207,16 @@ def _regions_to_seams(
     log.counts["seam_groups"] = len(fitted)
     with log.step("refine"):
         for c in fitted:
-            labs = c.seed_labels or (
-                _majority(grid.labels, regions, c.regions_a),
-                _majority(grid.labels, regions, c.regions_b),
-            )
-            if labels is not None and (min(labs) < 0 or labs[0] == labs[1]):
+            if c.seed_labels:
+                labs = c.seed_labels
+            else:
+                la = _majority(grid.labels, regions, c.regions_a)
+                # geometry decides: when one mask bled over the fold (a face seen at a grazing angle
+                # merged into the plate), the other side is named by its own best other label
+                labs = (la, _majority(grid.labels, regions, c.regions_b, avoid=la))
+            if labels is not None and min(labs) < 0:
                 # one side is mostly background (table, fixture): a workpiece edge standing on the
-                # table is a concave junction, but not a seam of the workpiece. And a seam joins two
-                # distinct surfaces: the same label on both sides is a mask bleeding over a fold
+                # table is a concave junction, but not a seam of the workpiece
                 continue
             curved_first = bool(curved_regions & set(c.regions_a + c.regions_b))
             out.extend(_finish(full, c, labs, params, viewpoint, curved_first=curved_first))
@@ -438,9 +440,22 @@ def _covers(a: FloatArray, b: FloatArray, *, tol_m: float = 0.004) -> bool:
     return bool(t.max() > 0 and t.min() < la)
 
 
-def _majority(voxel_labels: NDArray[np.int32], regions: NDArray[np.int32], ids: tuple[int, ...]) -> int:
+def _majority(
+    voxel_labels: NDArray[np.int32], regions: NDArray[np.int32], ids: tuple[int, ...], *, avoid: int | None = None
+) -> int:
+    """The mask label most of these regions' voxels carry (-1: background); with ``avoid``, the most common
+    other workpiece label when that one wins (and ``avoid`` itself when there is none)."""
     lab = voxel_labels[np.isin(regions, ids)]
-    return int(np.bincount(lab + 1).argmax()) - 1 if lab.size else -1
+    if not lab.size:
+        return -1
+    counts = np.bincount(lab + 1)
+    best = int(counts.argmax()) - 1
+    if avoid is not None and best == avoid >= 0:
+        counts[avoid + 1] = 0
+        counts[0] = 0
+        if counts.any():
+            return int(counts.argmax()) - 1
+    return best
 
 
 def _group_collinear(

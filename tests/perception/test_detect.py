@@ -67,12 +67,15 @@ def test_torch_points_into_the_joint_on_the_bisector() -> None:
         assert np.allclose(X[:3, :3].T @ X[:3, :3], np.eye(3), atol=1e-9)
 
 
-def test_ribs_finds_ten_seams_no_false_ones() -> None:
-    out, rep = score(rendered("ribs", "structured"))
+@pytest.mark.parametrize(("noise", "seed"), [("structured", 1), ("stereo", 2)])
+def test_ribs_finds_ten_seams_no_false_ones(noise: str, seed: int) -> None:
+    # stereo seed 2: bar0's -x face, seen at 75 deg incidence, is merged into the plate's mask; geometry
+    # still separates it. Structured seed 1: two bars' faces 5 mm out of line share one mask
+    out, rep = score(rendered("ribs", noise, seed))
     assert rep.n_truth == 10
-    assert rep.n_found >= 9, rep.to_json()
+    assert rep.n_found == 10, rep.to_json()
     assert not rep.false_seams
-    assert rep.rmse_m < 0.0003
+    assert rep.rmse_m < 0.0002 and rep.max_m < 0.0008, rep.to_json()
     removed = 1 - out.point_counts["cropped"] / out.point_counts["raw"]
     assert removed > 0.8
 
