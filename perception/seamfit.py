@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from perception.cloud import Neighbourhoods
+from perception.cloud import Neighbourhoods, kdtree
 
 FloatArray = NDArray[np.float64]
 
@@ -121,7 +121,7 @@ def _components(points: FloatArray, radius: float) -> NDArray[np.int64]:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    pairs = kdtree(points).query_pairs(radius, output_type="ndarray")
     n = len(points)
     g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, lab = connected_components(g, directed=False)
@@ -133,7 +133,7 @@ def order_along_curve(points: FloatArray, radius: float) -> FloatArray:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
-    tree = cKDTree(points)
+    tree = kdtree(points)
     pairs = tree.query_pairs(radius, output_type="ndarray")
     n = len(points)
     w = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
@@ -232,7 +232,7 @@ def _indices_near_polyline(full: FullRes, line: FloatArray, radius: float) -> ND
 
     # balls every 2R of radius sqrt(2)R cover the cylinder of radius R around each segment
     samples = resample_polyline(line, 2 * radius)
-    hits = full.tree.query_ball_point(samples, 1.42 * radius, workers=2)
+    hits = full.tree.query_ball_point(samples, 1.42 * radius)  # small queries: threads would cost more
     if not len(hits):
         return np.zeros(0, np.int64)
     return np.unique(np.concatenate([np.asarray(h, dtype=np.int64) for h in hits]))
@@ -850,8 +850,8 @@ def butt_from_surfaces(
         return None
     n = orient_towards(n, c, viewpoint)
     qa, qb = pa[keep[: len(pa)]], pb[keep[len(pa) :]]
-    da, _ = cKDTree(qb).query(qa, distance_upper_bound=0.006)
-    db, _ = cKDTree(qa).query(qb, distance_upper_bound=0.006)
+    da, _ = kdtree(qb).query(qa, distance_upper_bound=0.006)
+    db, _ = kdtree(qa).query(qb, distance_upper_bound=0.006)
     border = np.vstack([qa[np.isfinite(da)], qb[np.isfinite(db)]])
     if len(border) < 20:
         return None

@@ -11,6 +11,7 @@ from perception.cloud import (
     neighbourhoods,
     normals_and_curvature,
     pass_through,
+    smallest_eigenpairs,
     voxel_downsample,
 )
 
@@ -91,3 +92,28 @@ def test_coplanar_fragments_are_merged() -> None:
     regions = np.where(pts[:, 0] < 0.03, 0, 1).astype(np.int32)
     merged = merge_coplanar_regions(pts, regions, nbh)
     assert set(merged.tolist()) == {0}
+
+
+def test_closed_form_smallest_eigenpair_matches_eigh() -> None:
+    rng = np.random.default_rng(3)
+    m = 2000
+    rot, _ = np.linalg.qr(rng.normal(size=(m, 3, 3)))
+    # plane-like (l0 << l1 <= l2) as in scan neighbourhoods, from 1e-12 to 3e-5 m^2
+    lam = np.column_stack([rng.uniform(1e-12, 1e-6, m), rng.uniform(5e-6, 1e-5, m), rng.uniform(1e-5, 3e-5, m)])
+    cov = np.einsum("mij,mj,mkj->mik", rot, lam, rot)
+    special = np.array([np.diag([3.0, 1.0, 2.0]), np.zeros((3, 3)), np.eye(3), np.outer([1.0, 2, 2], [1.0, 2, 2])])
+    cov = np.concatenate([cov, special])
+    l0, v = smallest_eigenpairs(cov)
+    evals, evecs = np.linalg.eigh(cov)
+    scale = np.abs(evals).max(axis=1)
+    # to rounding for distinct eigenvalues; to ~sqrt(eps) of the largest one where two coincide
+    assert (np.abs(l0 - evals[:, 0]) <= 1e-12 * scale)[:m].all()
+    assert (np.abs(l0 - evals[:, 0]) <= 1e-7 * scale).all()
+    assert np.allclose(np.linalg.norm(v, axis=1), 1.0)
+    # the vector is an eigenvector of the smallest eigenvalue (any one where that eigenvalue repeats)
+    residual = np.einsum("mij,mj->mi", cov, v) - l0[:, None] * v
+    assert (np.abs(residual).max(axis=1) <= 1e-7 * np.maximum(scale, 1e-300)).all()
+    distinct = evals[:, 1] - evals[:, 0] > 1e-3 * evals[:, 2]
+    assert distinct[:m].all()
+    assert np.abs(np.abs((v * evecs[:, :, 0]).sum(axis=1))[distinct] - 1.0).max() < 1e-9
+    assert np.allclose(v[m + 0], [0, 1, 0]) or np.allclose(v[m + 0], [0, -1, 0])
