@@ -49,13 +49,18 @@ def organized_normals(points: FloatImage, *, window_px: int = 5, step_px: int = 
     du[:, s:-s] = sm[:, 2 * s :] - sm[:, : -2 * s]
     dv[s:-s, :] = sm[2 * s :, :] - sm[: -2 * s, :]
     n = np.cross(du, dv)
-    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    norm = np.sqrt(_dot(n, n))[..., None]
     with np.errstate(invalid="ignore", divide="ignore"):
-        n = n / norm
-    flip = (n * sm).sum(axis=-1) > 0
+        n /= norm
+    flip = _dot(n, sm) > 0
     n[flip] *= -1
     n[~ok] = np.nan
-    return n.astype(np.float32)
+    return n.astype(np.float32, copy=False)
+
+
+def _dot(a: FloatImage, b: FloatImage) -> FloatImage:
+    """Per-pixel dot product of two (..., 3) images."""
+    return np.asarray(np.einsum("...k,...k->...", a, b))
 
 
 def normal_edges(normals: FloatImage, *, max_angle_deg: float, step_px: int = 2) -> NDArray[np.bool_]:
@@ -64,8 +69,8 @@ def normal_edges(normals: FloatImage, *, max_angle_deg: float, step_px: int = 2)
     s = step_px
     edge = np.zeros(normals.shape[:2], bool)
     with np.errstate(invalid="ignore"):
-        du = (normals[:, 2 * s :] * normals[:, : -2 * s]).sum(axis=-1)
-        dv = (normals[2 * s :, :] * normals[: -2 * s, :]).sum(axis=-1)
+        du = _dot(normals[:, 2 * s :], normals[:, : -2 * s])
+        dv = _dot(normals[2 * s :, :], normals[: -2 * s, :])
     edge[:, s:-s] |= ~(du > c)
     edge[s:-s, :] |= ~(dv > c)
     return edge
@@ -91,19 +96,13 @@ def depth_edges(points: FloatImage, *, jump_m: float, footprint_factor: float = 
     valid = np.isfinite(z)
     edge = ~valid
     thr = jump_m + footprint_factor * pixel_angle_rad(points) * np.nan_to_num(z)
-    for axis in (0, 1):
-        a = np.take(points, np.arange(points.shape[axis] - 1), axis=axis)
-        b = np.take(points, np.arange(1, points.shape[axis]), axis=axis)
-        d = np.linalg.norm(a - b, axis=-1)
-        t = np.take(thr, np.arange(points.shape[axis] - 1), axis=axis)
+    for img, t, out in ((points, thr, edge), (points.transpose(1, 0, 2), thr.T, edge.T)):  # along v, then u
+        diff = img[1:] - img[:-1]
+        d = np.sqrt(_dot(diff, diff))
         with np.errstate(invalid="ignore"):
-            jump = ~(d <= t)
-        if axis == 0:
-            edge[:-1] |= jump
-            edge[1:] |= jump
-        else:
-            edge[:, :-1] |= jump
-            edge[:, 1:] |= jump
+            jump = ~(d <= t[:-1])
+        out[:-1] |= jump
+        out[1:] |= jump
     return edge
 
 
@@ -123,24 +122,19 @@ def veil_mask(
     s = 2
     edge = np.zeros(sm.shape[:2], bool)
     with np.errstate(invalid="ignore"):
-        for axis in (0, 1):
-            n = sm.shape[axis]
+        for img, out in ((sm, edge), (sm.transpose(1, 0, 2), edge.T)):  # along v, then along u (views)
+            n = img.shape[0]
             if n <= 6 * s:
                 continue
-
-            def shifted(k: int, n: int = n, axis: int = axis) -> FloatImage:
-                return np.take(sm, np.arange(3 * s + k, n - 3 * s + k), axis=axis)
-
-            d0 = np.linalg.norm(shifted(s) - shifted(-s), axis=-1)
-            d_prev = np.linalg.norm(shifted(-s) - shifted(-3 * s), axis=-1)
-            d_next = np.linalg.norm(shifted(3 * s) - shifted(s), axis=-1)
+            # steps across each pixel, 2s apart: D[j] = |p[j + 2s] - p[j]| is centred on pixel j + s, so the
+            # step across pixel i and those just before and after it are D[i - s], D[i - 3s] and D[i + s]
+            diff = img[2 * s :] - img[: -2 * s]
+            D = np.sqrt(_dot(diff, diff))
+            d0, d_prev, d_next = D[2 * s : n - 4 * s], D[: n - 6 * s], D[4 * s : n - 2 * s]
             calm = np.fmax(d_prev, d_next)
             spike = (d0 > jump_m) & ~(d0 <= spike_ratio * np.nan_to_num(calm, nan=np.inf))
             spike |= (d0 > jump_m) & np.isnan(calm)
-            if axis == 0:
-                edge[3 * s : n - 3 * s, :] |= spike
-            else:
-                edge[:, 3 * s : n - 3 * s] |= spike
+            out[3 * s : n - 3 * s] |= spike
     if dilate_px > 0:
         k = 2 * dilate_px + 1
         edge = cv2.dilate(edge.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)

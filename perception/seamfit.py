@@ -232,10 +232,14 @@ def _indices_near_polyline(full: FullRes, line: FloatArray, radius: float) -> ND
 
     # balls every 2R of radius sqrt(2)R cover the cylinder of radius R around each segment
     samples = resample_polyline(line, 2 * radius)
-    hits = full.tree.query_ball_point(samples, 1.42 * radius)  # small queries: threads would cost more
+    # small queries: scipy's worker threads would cost more than they save
+    hits = full.tree.query_ball_point(samples, 1.42 * radius, return_sorted=False)
     if not len(hits):
         return np.zeros(0, np.int64)
-    return np.unique(np.concatenate([np.asarray(h, dtype=np.int64) for h in hits]))
+    seen = np.zeros(len(full.points), dtype=bool)  # the balls overlap: mark, then list (no sort)
+    for h in hits:
+        seen[h] = True
+    return np.flatnonzero(seen)
 
 
 def _points_near_polyline(full: FullRes, region: int | tuple[int, ...], line: FloatArray, radius: float) -> FloatArray:

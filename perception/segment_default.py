@@ -129,7 +129,6 @@ class GraphSegmenter:
         f = patches.factor
         comp = patches.components
         h, w = comp.shape
-        markers = np.zeros((h, w), np.int32)
         by_comp: dict[int, list[int]] = {}
         scores = [0.0] * K
         for k, (u, v) in enumerate(prompts):
@@ -139,15 +138,15 @@ class GraphSegmenter:
                 scores[k] = 1.0
         areas = np.bincount(comp.ravel(), minlength=patches.n_components)
         bg_min = self.params.background_min_fraction * h * w
-        prompted = set(by_comp)
         background = K + 1
-        bg_ids = np.array([c for c in range(1, patches.n_components) if c not in prompted and areas[c] >= bg_min])
-        if len(bg_ids):
-            markers[np.isin(comp, bg_ids)] = background
+        # marker of each patch: its prompt's, background for large unprompted patches, else none (0)
+        lut = np.where(areas >= bg_min, background, 0).astype(np.int32)
+        lut[0] = 0
         for c, ks in by_comp.items():
-            if len(ks) == 1:
-                markers[comp == c] = ks[0] + 1
-            else:
+            lut[c] = ks[0] + 1 if len(ks) == 1 else 0
+        markers = lut[comp]
+        for ks in by_comp.values():
+            if len(ks) > 1:
                 for k in ks:
                     u, v = prompts[k] / f
                     cv2.circle(markers, (round(u), round(v)), 2, k + 1, -1)
