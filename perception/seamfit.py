@@ -251,6 +251,9 @@ def _points_near_polyline(full: FullRes, region: int | tuple[int, ...], line: Fl
     return full.points[idx[np.isin(full.regions[idx], regs)]]
 
 
+JOINT_KINDS = ("fillet", "convex", "butt", "none")
+
+
 def classify_junction(
     pa: FloatArray, pb: FloatArray, params: SeamParams, viewpoint: FloatArray
 ) -> tuple[str, FloatArray, FloatArray, float]:
@@ -289,22 +292,51 @@ def classify_junction_local(
     targets = np.arange(t.min(), t.max() + anchor_spacing_m / 2, anchor_spacing_m)
     order = np.argsort(t)
     pick = np.unique(order[np.clip(np.searchsorted(t[order], targets), 0, len(t) - 1)])
-    anchors = list(edge_points[pick])
-    votes: dict[str, list[tuple[FloatArray, FloatArray, float]]] = {}
+    anchors = edge_points[pick]
     r = params.patch_radius_m
-    hits_a = tree_a.query_ball_point(np.asarray(anchors), r)
-    hits_b = tree_b.query_ball_point(np.asarray(anchors), r)
-    for ia, ib in zip(hits_a, hits_b, strict=True):
-        if len(ia) < 6 or len(ib) < 6:
-            continue
-        joint, na, nb, rms = classify_junction(tree_a.data[ia], tree_b.data[ib], params, viewpoint)
-        votes.setdefault(joint, []).append((na, nb, rms))
-    if not votes:
+    hits_a = tree_a.query_ball_point(anchors, r)
+    hits_b = tree_b.query_ball_point(anchors, r)
+    use = np.array([len(ia) >= 6 and len(ib) >= 6 for ia, ib in zip(hits_a, hits_b, strict=True)], dtype=bool)
+    if not use.any():
         return "none", np.zeros(3), np.zeros(3), 0.0
-    joint = max(votes, key=lambda k: len(votes[k]))
-    na = np.mean([v[0] for v in votes[joint]], axis=0)
-    nb = np.mean([v[1] for v in votes[joint]], axis=0)
-    return joint, na / np.linalg.norm(na), nb / np.linalg.norm(nb), float(np.median([v[2] for v in votes[joint]]))
+    ca, na, rms_a = plane_patches(tree_a.data, list(hits_a[use]), anchors[use])
+    cb, nb, rms_b = plane_patches(tree_b.data, list(hits_b[use]), anchors[use])
+    # the rules of classify_junction, for every anchor at once
+    na = np.where(((viewpoint - ca) * na).sum(axis=1, keepdims=True) >= 0, na, -na)
+    nb = np.where(((viewpoint - cb) * nb).sum(axis=1, keepdims=True) >= 0, nb, -nb)
+    angle = np.degrees(np.arccos(np.clip(np.abs((na * nb).sum(axis=1)), -1.0, 1.0)))
+    m = params.concave_margin_m
+    concave = ((na * (cb - ca)).sum(axis=1) > m) & ((nb * (ca - cb)).sum(axis=1) > m)
+    folded = angle >= params.min_fold_deg
+    flush = (angle <= params.max_coplanar_deg) & (np.abs((na * (cb - ca)).sum(axis=1)) < 0.002)
+    kinds = np.where(folded, np.where(concave, 0, 1), np.where(flush, 2, 3))  # JOINT_KINDS
+    # majority vote; a tie goes to the kind seen first along the junction
+    counts = np.bincount(kinds, minlength=4)
+    tied = np.flatnonzero(counts == counts.max())
+    code = int(tied[np.argmin([np.argmax(kinds == k) for k in tied])]) if len(tied) > 1 else int(tied[0])
+    joint = JOINT_KINDS[code]
+    win = kinds == code
+    n_a, n_b = na[win].mean(axis=0), nb[win].mean(axis=0)
+    rms = float(np.median(np.maximum(rms_a, rms_b)[win]))
+    return joint, n_a / np.linalg.norm(n_a), n_b / np.linalg.norm(n_b), rms
+
+
+def plane_patches(
+    data: FloatArray, hits: list[list[int]], refs: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Least-squares planes of many small point sets at once: ``hits`` are index lists into ``data`` and
+    ``refs`` (K, 3) a point near each set (coordinates are taken relative to it, for precision).
+    Returns (K, 3) centroids, (K, 3) unit normals (either sign) and (K,) RMS distances, as fit_plane."""
+    lens = np.array([len(h) for h in hits])
+    flat = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])
+    owner = np.repeat(np.arange(len(hits)), lens)
+    q = data[flat] - refs[owner]
+    starts = np.concatenate([[0], np.cumsum(lens)[:-1]])
+    mean = np.add.reduceat(q, starts, axis=0) / lens[:, None]
+    second = np.add.reduceat(q[:, :, None] * q[:, None, :], starts, axis=0) / lens[:, None, None]
+    cov = second - mean[:, :, None] * mean[:, None, :]
+    evals, evecs = np.linalg.eigh(cov)  # a few matrices: one batched call beats the closed form's many
+    return mean + refs, evecs[:, :, 0], np.sqrt(np.clip(evals[:, 0], 0.0, None))
 
 
 def fit_edge_path(edge_points: FloatArray, params: SeamParams, voxel_m: float) -> tuple[str, FloatArray]:
