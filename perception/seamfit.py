@@ -543,7 +543,9 @@ def line_coordinates(pts: FloatArray, center: FloatArray, direction: FloatArray)
     """(N,) position along a line through ``center`` with unit ``direction``, and (N,) distance from it."""
     rel = pts - center
     t = rel @ direction
-    return t, np.linalg.norm(rel - np.outer(t, direction), axis=1)
+    # Pythagoras instead of the perpendicular vectors: no (N, 3) temporaries (points lie within
+    # centimetres of the line here, so the difference of squares loses nothing that matters)
+    return t, np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - t * t, 0.0))
 
 
 def _segment(center: FloatArray, direction: FloatArray, window: tuple[float, float]) -> FloatArray:
