@@ -101,6 +101,13 @@ def test_paper_method_is_less_accurate_than_refined() -> None:
     assert refined.rmse_m < paper.rmse_m / 3
 
 
+def test_without_the_crop_the_same_seam_is_found() -> None:
+    # no crop: the base plate's top grows into the table around it, and must still count as the plate
+    _, rep = score(rendered("t_joint", "stereo"), DetectParams(crop=False))
+    assert rep.n_found == 1 and not rep.false_seams, rep.to_json()
+    assert rep.rmse_m < 0.0001 and rep.max_m < 0.0002, rep.to_json()
+
+
 def test_base_frame_output_with_pose() -> None:
     res = rendered("t_joint", "none", with_pose=True)
     out = detect(res.capture)
