@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     d.set_defaults(func=run_demo)
 
 
+VALIDATED_VOXEL_MM = (3.0, 4.0)  # weldcell bench voxel sweep (ribs, pipe): every seam found, max error < 0.4 mm
+
+
 def _add_detect_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", help="write seams.json here")
     p.add_argument("--overlay", help="write the overlay PNG here")
@@ -37,9 +41,7 @@ def _add_detect_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--segmenter", choices=("default", "fastsam"), default="default")
     p.add_argument("--model", help="FastSAM ONNX export (with --segmenter fastsam)")
     p.add_argument("--voxel-mm", type=float, default=3.0, help="voxel size in mm (paper: 3)")
-    p.add_argument(
-        "--method", choices=("refined", "paper"), default="refined", help="'paper': no sub-voxel refinement"
-    )
+    p.add_argument("--method", choices=("refined", "paper"), default="refined", help="'paper': no sub-voxel refinement")
     p.add_argument("--step-mm", type=float, default=5.0, help="path point spacing in mm")
     p.add_argument("--work-angle", type=float, default=0.0, help="work angle offset from the bisector, deg")
     p.add_argument("--travel-angle", type=float, default=0.0, help="travel angle, deg (positive = push)")
@@ -53,6 +55,14 @@ def build_params(args: argparse.Namespace) -> Any:
 
     if not 0.2 <= args.voxel_mm <= 50:
         raise BadCapture(f"--voxel-mm must be between 0.2 and 50, got {args.voxel_mm}")
+    if not VALIDATED_VOXEL_MM[0] <= args.voxel_mm <= VALIDATED_VOXEL_MM[1]:
+        # the fine stage's neighbourhoods are a few voxels wide: much finer voxels see noise, much coarser
+        # ones blur a 30 mm face into a few voxels (weldcell bench's voxel sweep shows where seams go)
+        print(
+            f"warning: --voxel-mm {args.voxel_mm:g} is outside the range the detector is validated for "
+            f"({VALIDATED_VOXEL_MM[0]:g}-{VALIDATED_VOXEL_MM[1]:g} mm); seams may be missed or mis-fitted",
+            file=sys.stderr,
+        )
     if not 0.5 <= args.step_mm <= 100:
         raise BadCapture(f"--step-mm must be between 0.5 and 100, got {args.step_mm}")
     for name in ("work_angle", "travel_angle"):

@@ -197,6 +197,16 @@ def test_cli_exit_codes(tmp_path: Path, capsys) -> None:
     assert "no seam found" in err and err.count("\n") == 1
 
 
+def test_a_voxel_size_outside_the_validated_range_is_warned_about(capsys) -> None:
+    assert main(["detect", str(SAMPLE), "--voxel-mm", "3.5"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    main(["detect", str(SAMPLE), "--voxel-mm", "8"])
+    err = capsys.readouterr().err
+    assert "warning: --voxel-mm 8 is outside the range the detector is validated for (3-4 mm)" in err
+    assert main(["detect", str(SAMPLE), "--voxel-mm", "0"]) == 2
+    assert "--voxel-mm must be between" in capsys.readouterr().err
+
+
 def test_bundled_sample_round_trip_is_stable() -> None:
     cap = load_capture(SAMPLE)
     a = detect(cap)
