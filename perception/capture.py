@@ -574,12 +574,14 @@ def save_capture(
 
 @dataclass(frozen=True)
 class PointCloud:
-    """An unorganized cloud: (N, 3) float64 points in metres in ``frame``; optional (N, 3) colours in [0, 1]."""
+    """An unorganized cloud: (N, 3) float64 points in metres in ``frame``; optional (N, 3) colours in [0, 1]
+    and (N, 3) unit normals as the file gave them (their sign says which side the sensor saw)."""
 
     points: FloatArray
     colors: FloatArray | None = None
     frame: str = "camera"
     source: str = ""
+    normals: FloatArray | None = None
 
 
 def read_point_cloud(path: str | os.PathLike[str]) -> PointCloud:
@@ -591,6 +593,7 @@ def read_point_cloud(path: str | os.PathLike[str]) -> PointCloud:
     if not p.is_file():
         raise BadCapture("point cloud file does not exist", path=p)
     colors: FloatArray | None = None
+    normals: FloatArray | None = None
     if suffix == ".npy":
         try:
             pts = np.load(p, allow_pickle=False)
@@ -608,6 +611,8 @@ def read_point_cloud(path: str | os.PathLike[str]) -> PointCloud:
             raise BadCapture("no points could be read (empty, corrupt, or a mesh without vertices)", path=p)
         if pcd.has_colors():
             colors = np.asarray(pcd.colors, dtype=np.float64)
+        if pcd.has_normals():
+            normals = np.asarray(pcd.normals, dtype=np.float64)
     else:
         raise BadCapture(f"unsupported point cloud format {suffix!r}; use .ply, .pcd or .npy", path=p)
     keep = np.all(np.isfinite(pts), axis=1)
@@ -618,4 +623,9 @@ def read_point_cloud(path: str | os.PathLike[str]) -> PointCloud:
         colors = colors[keep]
         if not colors.any():
             colors = None  # all-black colour channels carry no information (common in LiDAR PCDs)
-    return PointCloud(points=pts, colors=colors, frame="unknown", source=str(p))
+    if normals is not None:
+        normals = normals[keep]
+        length = np.linalg.norm(normals, axis=1)
+        if not (np.all(np.isfinite(normals)) and np.all(np.abs(length - 1.0) < 0.01)):
+            normals = None  # zero, unnormalised or NaN normals: ignore them rather than trust them
+    return PointCloud(points=pts, colors=colors, frame="unknown", source=str(p), normals=normals)

@@ -33,6 +33,7 @@ from perception.cloud import (
     neighbourhoods,
     normals_and_curvature,
     pass_through,
+    surface_spacing,
     voxel_downsample,
 )
 from perception.errors import NoSeamFound, PerceptionError
@@ -134,9 +135,10 @@ def _regions_to_seams(
     log: StepLog,
     viewpoint: FloatArray,
     pairs: dict[tuple[int, int], int] | None = None,
+    spacing_m: float = 0.0,
 ) -> list[SeamGeometry]:
-    """The fine stage on an unorganized cloud (camera frame)."""
-    sp = params.seams
+    """The fine stage on an unorganized cloud (camera frame); ``spacing_m``: a sparse scan's sample
+    spacing (0: dense)."""
     with log.step("pass_through"):
         keep = pass_through(
             pts,
@@ -157,6 +159,9 @@ def _regions_to_seams(
                 if len(q) >= 6:
                     log.voxel_planes[int(k)] = fit_plane(q)
     log.counts["downsampled"] = len(grid.centroids)
+    if params.method != "paper":  # the paper's plain method stays as published
+        params = replace(params, seams=_scaled_to_data(params.seams, params.voxel_m, spacing_m))
+    sp = params.seams
     with log.step("kdtree"):
         nbh = neighbourhoods(grid.centroids, k=params.knn, radius_m=params.normal_radius_voxels * params.voxel_m)
     with log.step("normals"):
@@ -168,7 +173,13 @@ def _regions_to_seams(
         regions = merge_coplanar_regions(grid.centroids, regions, nbh)
     log.counts["regions"] = int(regions.max(initial=-1)) + 1
     with log.step("candidates"):
-        edges = region_edges(regions, nbh, min_points=sp.min_edge_points, link_m=2.5 * params.voxel_m)
+        edges = region_edges(
+            regions,
+            nbh,
+            min_points=sp.min_edge_points,
+            link_m=2.5 * params.voxel_m,
+            bridge=params.voxel_m > REFERENCE_VOXEL_M and params.method != "paper",
+        )
         n_reg = int(regions.max(initial=-1)) + 1
         ok_r = regions >= 0
         region_normals = (
@@ -227,6 +238,27 @@ def _regions_to_seams(
             out.extend(_finish(full, c, labs, params, viewpoint, curved_first=curved_first))
         out = _dedupe(out)
     return out
+
+
+REFERENCE_VOXEL_M = 0.003  # the lengths in SeamParams are tuned for this voxel (the paper's)
+AUTO_VOXEL_FACTOR = 1.5  # clouds: voxel >= this times the sample spacing
+MAX_AUTO_VOXEL_M = 0.010
+
+
+def _scaled_to_data(sp: SeamParams, voxel_m: float, spacing_m: float) -> SeamParams:
+    """Lengths tuned for the reference voxel and a dense scan, adapted to coarser data. With a coarser
+    voxel the local patches (on voxel centroids) grow in proportion, so each still holds a few voxels;
+    with a sparse scan (``spacing_m``: its sample spacing, 0 for a camera's dense cloud) the
+    full-resolution refinement band, support bins and tolerated holes grow to hold a few samples. On the
+    reference voxel and dense data nothing changes."""
+    f = max(voxel_m / REFERENCE_VOXEL_M, 1.0)
+    return replace(
+        sp,
+        patch_radius_m=sp.patch_radius_m * f,
+        refine_band_m=max(sp.refine_band_m, 4.0 * spacing_m),
+        support_bin_m=max(sp.support_bin_m, 1.2 * spacing_m),
+        max_hole_m=max(sp.max_hole_m, 3.0 * spacing_m),
+    )
 
 
 def _butt_seams(
@@ -354,11 +386,20 @@ def _dedupe(geoms: list[SeamGeometry], *, max_dist_m: float = 0.001) -> list[Sea
                 if t.min() < own.min() - 1e-9 or t.max() > own.max() + 1e-9:
                     # the copies overlap only partly: cover both
                     ends = np.array([k.points[0] + t.min() * d, k.points[0] + t.max() * d])
-                    kept[i] = replace(k, points=ends)
+                    kept[i] = replace(
+                        k, points=ends, normals_a=_two_rows(k.normals_a), normals_b=_two_rows(k.normals_b)
+                    )
             break
         if not dup:
             kept.append(g)
     return kept
+
+
+def _two_rows(normals: FloatArray) -> FloatArray:
+    """A linear seam's normals for its two end points: the mean unit normal, twice (a linear seam traced
+    as a curve carries one per traced point)."""
+    n = normals.mean(axis=0)
+    return np.tile(n / np.linalg.norm(n), (2, 1))
 
 
 def _extended(line: FloatArray, by: float) -> FloatArray:
@@ -761,22 +802,27 @@ def detect(
     )
 
 
-def detect_cloud(cloud: PointCloud, params: DetectParams | None = None) -> DetectionResult:
-    """Fine stage only, on an unorganized cloud (PLY/PCD): no segmentation, no crop."""
+def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_voxel: bool = True) -> DetectionResult:
+    """Fine stage only, on an unorganized cloud (PLY/PCD): no segmentation, no crop. With ``auto_voxel``
+    a sparse cloud (a LiDAR scan) gets a voxel of 1.5 times its sample spacing when that is coarser than
+    ``params.voxel_m``, so that every voxel holds a point or two."""
     p = params or DetectParams()
     if len(cloud.points) < 50:
         raise PerceptionError(f"{cloud.source}: only {len(cloud.points)} points")
+    spacing = surface_spacing(cloud.points)
+    if auto_voxel and AUTO_VOXEL_FACTOR * spacing > p.voxel_m:
+        p = replace(p, voxel_m=min(AUTO_VOXEL_FACTOR * spacing, MAX_AUTO_VOXEL_M))
     log = StepLog()
     t0 = time.perf_counter()
     log.counts["raw"] = len(cloud.points)
     log.counts["cropped"] = len(cloud.points)
     # the viewpoint: clouds in a robot or world frame are not seen from their origin; use a point
     # above the cloud's centroid along the axis of least spread, on the side of most normals
-    viewpoint = _guess_viewpoint(cloud.points)
+    viewpoint = _guess_viewpoint(cloud.points, cloud.normals)
     if p.z_range_m == DetectParams().z_range_m:
         # the default working range is for camera-frame depth; a cloud may be in a robot frame
         p = replace(p, z_range_m=(-np.inf, np.inf))
-    geoms = _regions_to_seams(cloud.points, None, p, log, viewpoint=viewpoint)
+    geoms = _regions_to_seams(cloud.points, None, p, log, viewpoint=viewpoint, spacing_m=spacing)
     if not geoms:
         raise NoSeamFound(f"{log.counts.get('candidates', 0)} junction(s) examined, none is a concave seam")
     seams = _to_seams(geoms, p, None)
@@ -794,14 +840,21 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None) -> Detec
         info={
             "method": p.method,
             "voxel_m": p.voxel_m,
+            "spacing_m": round(spacing, 5),
             "viewpoint": viewpoint.round(4).tolist(),
             "counts": dict(log.counts),
         },
     )
 
 
-def _guess_viewpoint(points: FloatArray) -> FloatArray:
+def _guess_viewpoint(points: FloatArray, normals: FloatArray | None = None) -> FloatArray:
     c = points.mean(axis=0)
+    extent = max(float(np.ptp(points, axis=0).max()), 0.3)
+    if normals is not None:
+        # the file's normals face the sensor that saw the surfaces: their mean points towards it
+        mean = normals.mean(axis=0)
+        if np.linalg.norm(mean) > 0.2:
+            return np.asarray(c + mean / np.linalg.norm(mean) * extent)
     if np.linalg.norm(c) > 0.05 and c[2] > 0.05 and np.all(np.abs(c[:2]) < 0.6 * c[2]):
         # looks like a camera-frame cloud (in front of the origin): the camera is the viewpoint
         return np.zeros(3)
@@ -809,5 +862,4 @@ def _guess_viewpoint(points: FloatArray) -> FloatArray:
     up = vt[2]
     if up[2] < 0:
         up = -up  # robot/world frames: z up, the sensor looks down
-    extent = float(np.ptp(points, axis=0).max())
-    return np.asarray(c + up * max(extent, 0.3))
+    return np.asarray(c + up * extent)

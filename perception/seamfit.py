@@ -160,29 +160,64 @@ class EdgeSet:
     points_b: NDArray[np.int64]
 
 
-def region_edges(regions: NDArray[np.int32], nbh: Neighbourhoods, *, min_points: int, link_m: float) -> list[EdgeSet]:
+def region_edges(
+    regions: NDArray[np.int32], nbh: Neighbourhoods, *, min_points: int, link_m: float, bridge: bool = False
+) -> list[EdgeSet]:
     """Points of each region that have a neighbour in another region, grouped by region pair and split
-    into connected pieces (two regions may meet in more than one place)."""
+    into connected pieces (two regions may meet in more than one place). With ``bridge``, regions also
+    meet across one unassigned point (sparse scans: every neighbourhood at the fold straddles it)."""
     idx = nbh.idx
     ra = regions[:, None]
     rb = regions[idx]
     cross = nbh.valid & (ra >= 0) & (rb >= 0) & (rb != ra)
     rows, cols = np.nonzero(cross)
-    if len(rows) == 0:
+    # (point, neighbour) pairs on either side of a junction
+    p1, p2 = rows, idx[rows, cols]
+    bridged = _bridged_pairs(regions, nbh) if bridge else None
+    if bridged is not None:
+        p1, p2 = np.concatenate([p1, bridged[0]]), np.concatenate([p2, bridged[1]])
+    if len(p1) == 0:
         return []
-    r1 = regions[rows].astype(np.int64)
-    r2 = rb[rows, cols].astype(np.int64)
+    r1 = regions[p1].astype(np.int64)
+    r2 = regions[p2].astype(np.int64)
     lo, hi = np.minimum(r1, r2), np.maximum(r1, r2)
     key = lo * (int(regions.max()) + 1) + hi
     out: list[EdgeSet] = []
     for k in np.unique(key):
         sel = key == k
-        pts = np.unique(np.concatenate([rows[sel], idx[rows[sel], cols[sel]]]))
+        pts = np.unique(np.concatenate([p1[sel], p2[sel]]))
         a, b = int(lo[sel][0]), int(hi[sel][0])
         if len(pts) < 2 * min_points:
             continue
         out.extend(_split_pieces(a, b, pts, regions, min_points, link_m, nbh))
     return out
+
+
+def _bridged_pairs(
+    regions: NDArray[np.int32], nbh: Neighbourhoods
+) -> tuple[NDArray[np.int64], NDArray[np.int64]] | None:
+    """Regions that meet only across a strip of unassigned points (a sparse scan's fold, where every
+    neighbourhood straddles the corner): pairs of points of two regions that share an unassigned
+    neighbour."""
+    un = np.flatnonzero(regions < 0)
+    if len(un) == 0:
+        return None
+    nb = nbh.idx[un]
+    nreg = np.where(nbh.valid[un], regions[nb], -1)
+    n_reg = int(regions.max(initial=-1)) + 1
+    if n_reg < 2:
+        return None
+    out_a: list[NDArray[np.int64]] = []
+    out_b: list[NDArray[np.int64]] = []
+    for j in range(nb.shape[1]):
+        for i in range(j + 1, nb.shape[1]):
+            ok = (nreg[:, i] >= 0) & (nreg[:, j] >= 0) & (nreg[:, i] != nreg[:, j])
+            if ok.any():
+                out_a.append(nb[ok, i])
+                out_b.append(nb[ok, j])
+    if not out_a:
+        return None
+    return np.concatenate(out_a), np.concatenate(out_b)
 
 
 def _split_pieces(a, b, pts, regions, min_points, link_m, nbh) -> list[EdgeSet]:

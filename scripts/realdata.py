@@ -130,10 +130,8 @@ def main() -> int:
         t0 = time.perf_counter()
         try:
             cloud = read_point_cloud(path)
-            # LiDAR clouds are sparse (5-6 mm spacing): use a voxel that holds a few points
-            spacing = _spacing(cloud.points)
-            voxel = max(0.003, 1.5 * spacing)
-            res = detect_cloud(cloud, replace(DetectParams(), voxel_m=voxel))
+            res = detect_cloud(cloud)  # sparse scans get a coarser voxel (from their sample spacing)
+            voxel = res.info["voxel_m"]
             desc = ", ".join(f"{s.kind} {s.length_m * 1000:.0f} mm" for s in res.seams)
             rows.append((rel, len(res.seams), time.perf_counter() - t0, f"voxel {voxel * 1000:.1f} mm: {desc}"))
         except NoSeamFound as err:
@@ -144,15 +142,6 @@ def main() -> int:
     for name, n, dt, note in rows:
         print(f"{name:<{width}}  seams {n:>3}  {dt:6.2f} s  {note}")
     return 0
-
-
-def _spacing(points: np.ndarray) -> float:
-    from scipy.spatial import cKDTree
-
-    rng = np.random.default_rng(0)
-    sample = points[rng.choice(len(points), min(2000, len(points)), replace=False)]
-    d, _ = cKDTree(points).query(sample, k=2)
-    return float(np.median(d[:, 1]))
 
 
 if __name__ == "__main__":

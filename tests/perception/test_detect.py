@@ -202,7 +202,7 @@ def test_a_voxel_size_outside_the_validated_range_is_warned_about(capsys) -> Non
     assert "warning" not in capsys.readouterr().err
     main(["detect", str(SAMPLE), "--voxel-mm", "8"])
     err = capsys.readouterr().err
-    assert "warning: --voxel-mm 8 is outside the range the detector is validated for (3-4 mm)" in err
+    assert "warning: --voxel-mm 8 is outside the range the detector is validated for (3-5 mm)" in err
     assert main(["detect", str(SAMPLE), "--voxel-mm", "0"]) == 2
     assert "--voxel-mm must be between" in capsys.readouterr().err
 

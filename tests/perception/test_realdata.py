@@ -67,3 +67,20 @@ def test_clouds_run_without_errors(rel: str) -> None:
             # a seam found in a cloud lies within the cloud's bounds
             assert (s.points >= cloud.points.min(axis=0) - 0.01).all()
             assert (s.points <= cloud.points.max(axis=0) + 0.01).all()
+
+
+def test_the_cad_sampled_tee_gives_its_visible_fillet_on_the_cad_line() -> None:
+    # thillRobot's tee in its part frame (SOURCES.md): a 2-in tube along x (|y|, |z| <= 25.4 mm) and a 2-in
+    # tube standing on it along z (|x|, |y| <= 25.4 mm). Their fillets run along y at x = +-25.4 mm,
+    # z = 25.4 mm, 50.8 mm long; the sampled view sees the +x one (the y = +-25.4 mm junctions are flush).
+    path = REALDATA / "thillRobot_seam_detection/8in10in_tee_01_blndrB.pcd"
+    if not path.exists():
+        pytest.skip("8in10in_tee_01_blndrB.pcd missing")
+    cloud = read_point_cloud(path)
+    assert cloud.normals is not None  # its normals say which side the sensor saw
+    res = detect_cloud(cloud)
+    assert res.info["voxel_m"] > 0.004  # 3 mm sample spacing: a coarser voxel was chosen
+    assert len(res.seams) == 1
+    p = res.seams[0].points
+    assert np.abs(p[:, 0] - 0.0254).max() < 0.0005 and np.abs(p[:, 2] - 0.0254).max() < 0.0005
+    assert np.abs(p[:, 1]).max() <= 0.0254 and res.seams[0].length_m > 0.035
