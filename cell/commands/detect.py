@@ -40,7 +40,12 @@ def _add_detect_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-crop", action="store_true", help="skip the ROI crop (fine stage on the whole cloud)")
     p.add_argument("--segmenter", choices=("default", "fastsam"), default="default")
     p.add_argument("--model", help="FastSAM ONNX export (with --segmenter fastsam)")
-    p.add_argument("--voxel-mm", type=float, default=3.0, help="voxel size in mm (paper: 3)")
+    p.add_argument(
+        "--voxel-mm",
+        type=float,
+        default=None,
+        help="voxel size in mm (default 3, the paper's; a sparse .ply/.pcd scan gets 1.5x its sample spacing)",
+    )
     p.add_argument("--method", choices=("refined", "paper"), default="refined", help="'paper': no sub-voxel refinement")
     p.add_argument("--step-mm", type=float, default=5.0, help="path point spacing in mm")
     p.add_argument("--work-angle", type=float, default=0.0, help="work angle offset from the bisector, deg")
@@ -53,13 +58,14 @@ def build_params(args: argparse.Namespace) -> Any:
     from perception.errors import BadCapture
     from perception.path import TorchParams
 
-    if not 0.2 <= args.voxel_mm <= 50:
-        raise BadCapture(f"--voxel-mm must be between 0.2 and 50, got {args.voxel_mm}")
-    if not VALIDATED_VOXEL_MM[0] <= args.voxel_mm <= VALIDATED_VOXEL_MM[1]:
+    voxel_mm = 3.0 if args.voxel_mm is None else args.voxel_mm
+    if not 0.2 <= voxel_mm <= 50:
+        raise BadCapture(f"--voxel-mm must be between 0.2 and 50, got {voxel_mm}")
+    if not VALIDATED_VOXEL_MM[0] <= voxel_mm <= VALIDATED_VOXEL_MM[1]:
         # the fine stage's neighbourhoods are a few voxels wide: much finer voxels see noise, much coarser
         # ones blur a 30 mm face into a few voxels (weldcell bench's voxel sweep shows where seams go)
         print(
-            f"warning: --voxel-mm {args.voxel_mm:g} is outside the range the detector is validated for "
+            f"warning: --voxel-mm {voxel_mm:g} is outside the range the detector is validated for "
             f"({VALIDATED_VOXEL_MM[0]:g}-{VALIDATED_VOXEL_MM[1]:g} mm); seams may be missed or mis-fitted",
             file=sys.stderr,
         )
@@ -70,7 +76,7 @@ def build_params(args: argparse.Namespace) -> Any:
             raise BadCapture(f"--{name.replace('_', '-')} must be within +-60 degrees")
     return DetectParams(
         crop=not args.no_crop,
-        voxel_m=args.voxel_mm / 1000.0,
+        voxel_m=voxel_mm / 1000.0,
         method=args.method,
         torch=TorchParams(
             step_m=args.step_mm / 1000.0, work_angle_deg=args.work_angle, travel_angle_deg=args.travel_angle
@@ -102,7 +108,7 @@ def run_detect(args: argparse.Namespace) -> int:
     capture = None
     if src.is_file() or src.suffix.lower() in (".ply", ".pcd", ".npy"):
         cloud = read_point_cloud(src)
-        result = detect_cloud(cloud, replace(params, crop=False))
+        result = detect_cloud(cloud, replace(params, crop=False), auto_voxel=args.voxel_mm is None)
     else:
         capture = load_capture(src)
         result = detect(capture, params, segmenter=make_segmenter(args))
