@@ -19,7 +19,15 @@ The worker is started with multiprocessing's "spawn" method, so a script that co
 usual ``if __name__ == "__main__":`` guard.
 
 ur-rtde 1.6 always connects its RTDE interfaces to port 30004 and uploads its control script to port 30003; only
-the dashboard port (used by :meth:`URRobot.unlock_protective_stop`) can differ from the standard.
+the dashboard port (used by :meth:`URRobot.reset_faults` and :meth:`URRobot.unlock_protective_stop`) can differ from
+the standard.
+
+Recovering after a safety stop (:meth:`URRobot.reset_faults`, what an operator would do at the pendant) goes through
+the dashboard server with the commands ur-rtde's ``DashboardClient`` sends: ``close safety popup``; after an
+emergency stop (once its button is released) the arm is powered off: ``power on``, wait for robot mode IDLE,
+``brake release``, wait for RUNNING; after a protective stop ``unlock protective stop`` (a CB3 refuses it for 5 s
+after the stop: the driver asks again until it is accepted or its timeout passes). A safety stop ends the ur-rtde
+control script, so it is uploaded again before the arm counts as ready.
 """
 
 from __future__ import annotations
@@ -75,7 +83,15 @@ _BIT_EMERGENCY_STOPPED = 7
 _BIT_VIOLATION = 8
 _BIT_FAULT = 9
 _ESTOP_MASK = (1 << _BIT_EMERGENCY_STOPPED) | (1 << _BIT_ROBOT_EMERGENCY_STOPPED) | (1 << _BIT_SYSTEM_EMERGENCY_STOPPED)
+_ROBOT_MODE_BOOTING = 2
+_ROBOT_MODE_POWER_OFF = 3
+_ROBOT_MODE_POWER_ON = 4
+_ROBOT_MODE_IDLE = 5
 _ROBOT_MODE_RUNNING = 7
+# the robot modes the dashboard can bring to RUNNING (booting and idle are on the way)
+_RECOVERABLE_MODES = frozenset(
+    {_ROBOT_MODE_BOOTING, _ROBOT_MODE_POWER_OFF, _ROBOT_MODE_POWER_ON, _ROBOT_MODE_IDLE, _ROBOT_MODE_RUNNING}
+)
 _ROBOT_MODE_NAMES = {
     -1: "NO_CONTROLLER",
     0: "DISCONNECTED",
@@ -104,6 +120,13 @@ RECEIVE_VARIABLES = (
 
 _MOVING_SPEED_M_S = 1e-4
 _MOVING_SPEED_RAD_S = 1e-3
+
+# dashboard replies (the same text on CB3 and e-Series)
+_REPLY_UNLOCKED = "Protective stop releasing"
+_REPLY_UNLOCK_TOO_EARLY = "Cannot unlock protective stop"
+_REPLY_POWERING_ON = "Powering on"
+_REPLY_BRAKE_RELEASING = "Brake releasing"
+_UNLOCK_RETRY_S = 0.25
 
 
 class URRTDEError(Exception):
@@ -560,20 +583,120 @@ class URRobot:
     def unlock_protective_stop(self, *, timeout_s: float = 10.0) -> None:
         """Release a protective stop through the dashboard and restart the control script.
 
-        A CB3 refuses the unlock until 5 s after the stop; inspect the cause first.
+        A CB3 refuses the unlock until 5 s after the stop: it is asked again until then (within ``timeout_s``).
+        Inspect the cause first.
         """
-        log.debug("%s: dashboard: close safety popup, unlock protective stop", self.name)
-        replies = self._request(
-            "dashboard", ["close safety popup", "unlock protective stop"], timeout_s=self.command_timeout_s
-        )
-        if replies[-1] != "Protective stop releasing":
-            raise ProtectiveStop(f"{self.name}: the controller refused to unlock the protective stop: {replies[-1]!r}")
         deadline = time.monotonic() + timeout_s
-        while self._status().protective_stop:
-            if time.monotonic() > deadline:
-                raise DeviceTimeout(f"{self.name}: protective stop still active {timeout_s} s after unlocking")
-            time.sleep(self.poll_s)
+        self._dashboard("close safety popup")
+        self._unlock(deadline)
         self._ready_for_motion(deadline)
+
+    def reset_faults(self, *, timeout_s: float = 30.0) -> None:
+        """Bring the arm back after a safety stop whose cause an operator has cleared (see the module docstring).
+
+        Does nothing but check the control script when the arm is running without a stop. Raises EmergencyStop
+        while the emergency stop is still engaged, ProtectiveStop when the controller refuses the unlock,
+        DeviceFault for a robot mode that needs the pendant (backdrive, confirm safety...), DeviceTimeout when the
+        arm is not running with the control script within ``timeout_s``.
+        """
+        deadline = time.monotonic() + timeout_s
+        st = self._status()
+        stopped = st.emergency_stop or st.protective_stop or st.robot_mode != _ROBOT_MODE_RUNNING
+        if stopped:
+            log.info(
+                "%s: recovering (robot mode %s, safety mode %d)",
+                self.name,
+                _ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode)),
+                st.safety_mode,
+            )
+            self._dashboard("close safety popup")
+        if st.emergency_stop or st.robot_mode != _ROBOT_MODE_RUNNING:
+            st = self._power_up(st, deadline)
+        if st.protective_stop:
+            st = self._unlock(deadline)
+        if st.robot_mode != _ROBOT_MODE_RUNNING:  # the arm idled while it stood in the stop
+            st = self._power_up(st, deadline)
+        self._ready_for_motion(deadline)
+        if stopped:
+            log.info("%s: running again with the control script", self.name)
+
+    # ------------------------------------------------------------------ recovery
+    def _dashboard(self, command: str) -> str:
+        """Send one dashboard command and return the controller's reply."""
+        log.debug("%s: dashboard: %s", self.name, command)
+        reply: str = self._request("dashboard", [command], timeout_s=self.command_timeout_s)[0]
+        log.debug("%s: dashboard replied %r", self.name, reply)
+        return reply
+
+    def _unlock(self, deadline: float) -> _Status:
+        """``unlock protective stop``, asked again while the controller says it is too early; wait until released."""
+        while True:
+            reply = self._dashboard("unlock protective stop")
+            if reply.startswith(_REPLY_UNLOCKED):
+                break
+            if not reply.startswith(_REPLY_UNLOCK_TOO_EARLY) or time.monotonic() + _UNLOCK_RETRY_S > deadline:
+                raise ProtectiveStop(f"{self.name}: the controller refused to unlock the protective stop: {reply!r}")
+            time.sleep(_UNLOCK_RETRY_S)  # a CB3 refuses the unlock until 5 s after the stop
+        return self._wait_for(
+            lambda st: not st.protective_stop, deadline, "the protective stop is still active after unlocking"
+        )
+
+    def _power_up(self, st: _Status, deadline: float) -> _Status:
+        """Power on (a powered-off arm, or after an emergency stop), release the brakes, wait for RUNNING."""
+        powered = (_ROBOT_MODE_IDLE, _ROBOT_MODE_RUNNING)
+        if st.emergency_stop or st.robot_mode == _ROBOT_MODE_POWER_OFF:
+            reply = self._dashboard("power on")
+            if not reply.startswith(_REPLY_POWERING_ON):
+                if st.emergency_stop:
+                    raise EmergencyStop(
+                        f"{self.name}: the controller refused to power on ({reply!r}): the emergency stop is still "
+                        "engaged; release it, then acknowledge again"
+                    )
+                raise DeviceFault(f"{self.name}: the controller refused to power on: {reply!r}")
+        if st.robot_mode != _ROBOT_MODE_RUNNING:
+            # a released emergency stop resets as the arm powers on: one still engaged a moment later is pressed
+            st = self._wait_for(
+                lambda s: s.robot_mode in powered and not s.emergency_stop,
+                deadline,
+                "the arm did not power on",
+                estop_deadline=min(deadline, time.monotonic() + self.command_timeout_s),
+            )
+        if st.robot_mode == _ROBOT_MODE_IDLE:
+            reply = self._dashboard("brake release")
+            if not reply.startswith(_REPLY_BRAKE_RELEASING):
+                raise DeviceFault(f"{self.name}: the controller refused to release the brakes: {reply!r}")
+            st = self._wait_for(lambda s: s.robot_mode == _ROBOT_MODE_RUNNING, deadline, "the brakes were not released")
+        return st
+
+    def _wait_for(
+        self, done: Callable[[_Status], bool], deadline: float, what: str, *, estop_deadline: float | None = None
+    ) -> _Status:
+        """Poll the state until ``done(state)``. Raises EmergencyStop when the emergency stop is still engaged past
+        ``estop_deadline`` (or ``deadline``), DeviceFault when the robot mode needs the pendant, DeviceTimeout
+        (saying ``what``) past ``deadline``."""
+        estop_deadline = deadline if estop_deadline is None else estop_deadline
+        while True:
+            st = self._status()
+            if done(st):
+                return st
+            now = time.monotonic()
+            robot_mode = _ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))
+            if st.emergency_stop and now > estop_deadline:
+                raise EmergencyStop(
+                    f"{self.name}: the emergency stop is still engaged (robot mode {robot_mode}); release it, then "
+                    "acknowledge again"
+                )
+            if st.robot_mode not in _RECOVERABLE_MODES:
+                raise DeviceFault(
+                    f"{self.name}: robot mode {robot_mode} cannot be recovered from here; bring the arm to RUNNING "
+                    "at the teach pendant"
+                )
+            if now > deadline:
+                raise DeviceTimeout(
+                    f"{self.name}: {what} within the time allowed (robot mode {robot_mode}, safety mode "
+                    f"{st.safety_mode})"
+                )
+            time.sleep(self.poll_s)
 
     # ------------------------------------------------------------------ helpers
     def _checked_pose(self, X: FloatArray, name: str) -> FloatArray:
@@ -598,13 +721,12 @@ class URRobot:
         here = np.round(st.X_base_tool[:3, 3], 4).tolist()
         if st.emergency_stop:
             raise EmergencyStop(
-                f"{self.name}: emergency stop active {what} (tool at {here} m); release it, power on and "
-                "release the brakes before moving"
+                f"{self.name}: emergency stop active {what} (tool at {here} m); release it, then reset_faults() "
+                "(powers the arm on and releases the brakes)"
             )
         if st.protective_stop:
             raise ProtectiveStop(
-                f"{self.name}: protective stop {what} (tool at {here} m); inspect the cause, then "
-                "unlock_protective_stop()"
+                f"{self.name}: protective stop {what} (tool at {here} m); inspect the cause, then reset_faults()"
             )
 
     def _ready_for_motion(self, deadline: float) -> _Status:

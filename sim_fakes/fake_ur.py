@@ -33,10 +33,15 @@ tool in the robot base frame; ``X_base_tool`` arrays are 4x4 in metres. Times ar
 Faults (:class:`sim_fakes.faults.FaultInjectable`): ``drop_connection`` closes every client connection and the
 listening sockets (new connections are refused until cleared; the robot keeps running), ``no_answer`` freezes the
 controller (connections stay open, nothing is answered or streamed), ``protective_stop`` and ``emergency_stop``
-halt motion at once and stop the program. ``clear_faults()`` lifts the network faults and releases the emergency
-stop button; the stops stay latched as on a real controller: a protective stop until the dashboard's
-``unlock protective stop`` (accepted ``protective_stop_unlock_delay_s`` after the stop, 5 s on a real CB3), an
-emergency stop until ``power on`` and ``brake release``. ``reset()`` returns the fake to its initial state.
+halt motion at once and stop the program; an emergency stop also cuts the arm's power (robot mode POWER_OFF).
+``clear_faults()`` lifts the network faults and releases the emergency stop button; the stops stay latched as on a
+real controller: a protective stop until the dashboard's ``unlock protective stop`` (accepted
+``protective_stop_unlock_delay_s`` after the stop, 5 s on a real CB3), an emergency stop until the arm is powered
+up again. Powering up takes time, as on a real arm: ``power on`` (refused while the button is pressed) boots the
+arm (robot mode BOOTING for ``power_on_s``, then IDLE), ``brake release`` releases the brakes (IDLE for
+``brake_release_s``, then RUNNING; sent to an arm that is powered off or still booting, it powers on first). No
+program runs until the robot mode is RUNNING, so the ur-rtde control script must be uploaded again afterwards.
+``reset()`` returns the fake to its initial state.
 """
 
 from __future__ import annotations
@@ -83,6 +88,7 @@ ROBOT_MODE_NAMES = {
     6: "BACKDRIVE",
     7: "RUNNING",
 }
+ROBOT_MODE_BOOTING = 2
 ROBOT_MODE_POWER_OFF = 3
 ROBOT_MODE_IDLE = 5
 ROBOT_MODE_RUNNING = 7
@@ -590,6 +596,8 @@ class FakeURConfig:
     script_ports: tuple[int, ...] = SCRIPT_PORTS
     program_start_delay_s: float = 0.05
     protective_stop_unlock_delay_s: float = 5.0
+    power_on_s: float = 0.5
+    brake_release_s: float = 0.5
     serial_number: str = "2018300001"
 
     @property
@@ -630,6 +638,9 @@ class Controller:
             if "register" in name:
                 self.regs[name] = False if rtde_type == "BOOL" else (0.0 if rtde_type == "DOUBLE" else 0)
         self.robot_mode = ROBOT_MODE_RUNNING
+        self.booted_at: float | None = None  # when a power-on in progress ends (BOOTING -> IDLE)
+        self.released_at: float | None = None  # when a brake release in progress ends (IDLE -> RUNNING)
+        self.release_after_boot = False  # "brake release" arrived while the arm was powered off or booting
         self.protective = False
         self.protective_since = 0.0
         self.estop_pressed = False
@@ -744,7 +755,48 @@ class Controller:
         self.protective = False
         self.stop_program("emergency stop")
         self.hard_stop()
+        self.power_off()
+
+    def power_off(self) -> None:
+        """The arm's power is cut (an emergency stop, ``power off``...): any power-up in progress is abandoned."""
         self.robot_mode = ROBOT_MODE_POWER_OFF
+        self.booted_at = self.released_at = None
+        self.release_after_boot = False
+
+    def power_on(self) -> str:
+        """Dashboard ``power on``: boot a powered-off arm (refused while the emergency stop button is pressed)."""
+        if self.estop_pressed:
+            return "Failed to execute: power on"
+        if self.robot_mode == ROBOT_MODE_POWER_OFF:
+            self.estop_latched = False  # the button is released: powering on resets the emergency stop
+            self.robot_mode = ROBOT_MODE_BOOTING
+            self.booted_at = self.now() + self.cfg.power_on_s
+            self.record("power_on")
+        return "Powering on"
+
+    def brake_release(self) -> str:
+        """Dashboard ``brake release``: release the brakes of an idle arm, powering it on first if needed."""
+        if self.robot_mode in (ROBOT_MODE_POWER_OFF, ROBOT_MODE_BOOTING):
+            if self.power_on() != "Powering on":
+                return "Failed to execute: brake release"
+            self.release_after_boot = True
+        elif self.robot_mode == ROBOT_MODE_IDLE and self.released_at is None:
+            self.released_at = self.now() + self.cfg.brake_release_s
+            self.record("brake_release")
+        return "Brake releasing"
+
+    def advance_power(self) -> None:
+        """Finish a power-on or a brake release whose time has come."""
+        now = self.now()
+        if self.robot_mode == ROBOT_MODE_BOOTING and self.booted_at is not None and now >= self.booted_at:
+            self.robot_mode, self.booted_at = ROBOT_MODE_IDLE, None
+            self.record("powered_on")
+            if self.release_after_boot:
+                self.release_after_boot = False
+                self.brake_release()
+        if self.robot_mode == ROBOT_MODE_IDLE and self.released_at is not None and now >= self.released_at:
+            self.robot_mode, self.released_at = ROBOT_MODE_RUNNING, None
+            self.record("brakes_released")
 
     # ------------------------------------------------------------------ motion
     def check_reachable(self, segments: Sequence[Segment]) -> str:
@@ -773,6 +825,7 @@ class Controller:
         return self.motion
 
     def tick(self, dt: float) -> None:
+        self.advance_power()
         if self.runtime_state == RUNTIME_PAUSED:
             return
         if self.program is not None:
@@ -974,26 +1027,19 @@ class Controller:
         if low.startswith("addtolog "):
             return "Added log message"
         if low == "power on":
-            if self.estop_pressed:
-                return "Failed to execute: power on"
-            if self.robot_mode == ROBOT_MODE_POWER_OFF:
-                self.estop_latched = False
-                self.robot_mode = ROBOT_MODE_IDLE
-            return "Powering on"
+            return self.power_on()
         if low == "power off":
             self.stop_program("dashboard power off")
             self.hard_stop()
-            self.robot_mode = ROBOT_MODE_POWER_OFF
+            self.power_off()
             return "Powering off"
         if low == "brake release":
-            if self.robot_mode == ROBOT_MODE_IDLE:
-                self.robot_mode = ROBOT_MODE_RUNNING
-            return "Brake releasing"
+            return self.brake_release()
         if low == "restart safety":  # the safety system restarts with the arm powered off
             self.stop_program("dashboard restart safety")
             self.hard_stop()
             self.protective = False
-            self.robot_mode = ROBOT_MODE_POWER_OFF
+            self.power_off()
             return "Restarting safety"
         if low == "isprogramsaved":
             return f"true {self.loaded_program or '<unnamed>'}"
@@ -1004,7 +1050,7 @@ class Controller:
         if low == "shutdown":  # the fake keeps serving, with the arm powered off and no program
             self.stop_program("dashboard shutdown")
             self.hard_stop()
-            self.robot_mode = ROBOT_MODE_POWER_OFF
+            self.power_off()
             return "Shutting down"
         return f"could not understand: '{cmd}'"
 
@@ -1394,6 +1440,9 @@ class FakeURController:
     ``model``: "UR5" (default) or "UR5e" (kinematics). ``controller_version``: what RTDE and the dashboard report;
     (3, x, ...) is a CB3 streaming at up to 125 Hz, (5, x, ...) an e-Series at up to 500 Hz.
     ``q_home``: the joint angles (rad) the arm starts at and returns to on :meth:`reset`.
+    ``program_start_delay_s``: from a control script's arrival to its start. ``protective_stop_unlock_delay_s``:
+    how long after a protective stop the dashboard refuses to unlock it (5 s on a CB3). ``power_on_s`` /
+    ``brake_release_s``: how long ``power on`` boots the arm and ``brake release`` takes (seconds on a real arm).
 
     Use as a context manager or call :meth:`start` / :meth:`stop`.
     """
@@ -1409,6 +1458,8 @@ class FakeURController:
         q_home: Sequence[float] = Q_HOME,
         program_start_delay_s: float = 0.05,
         protective_stop_unlock_delay_s: float = 5.0,
+        power_on_s: float = 0.5,
+        brake_release_s: float = 0.5,
         startup_timeout_s: float = 30.0,
         request_timeout_s: float = 10.0,
     ) -> None:
@@ -1424,6 +1475,8 @@ class FakeURController:
             q_home=tuple(float(v) for v in q_home),
             program_start_delay_s=program_start_delay_s,
             protective_stop_unlock_delay_s=protective_stop_unlock_delay_s,
+            power_on_s=power_on_s,
+            brake_release_s=brake_release_s,
         )
         self.startup_timeout_s = startup_timeout_s
         self.request_timeout_s = request_timeout_s

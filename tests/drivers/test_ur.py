@@ -18,7 +18,14 @@ import pytest
 
 pytest.importorskip("rtde_control", reason="ur-rtde is not installed")
 
-from drivers.errors import ConnectionLost, DriverNotInstalled, MotionRejected, MotionTimeout, ProtectiveStop
+from drivers.errors import (
+    ConnectionLost,
+    DriverNotInstalled,
+    EmergencyStop,
+    MotionRejected,
+    MotionTimeout,
+    ProtectiveStop,
+)
 from drivers.protocols import RobotMode
 from drivers.ur import URRobot
 from perception.transforms import make_X, rotation_angle_rad
@@ -373,6 +380,73 @@ def test_emergency_stop_needs_release_and_power_on(robot_and_fake):
     while robot.state().mode != RobotMode.IDLE and time.monotonic() < deadline:
         time.sleep(0.01)
     assert robot.state().mode == RobotMode.IDLE
+
+
+def dashboard_commands(fake: FakeURController) -> list[tuple[str, str]]:
+    """Every dashboard command the fake received, with its reply, in order."""
+    return [(e["command"], e["reply"]) for e in fake.events() if e["kind"] == "dashboard"]
+
+
+def event_time(fake: FakeURController, kind: str) -> float:
+    (t,) = [e["t"] for e in fake.events() if e["kind"] == kind]
+    return float(t)
+
+
+@pytest.mark.timeout(30)
+def test_reset_faults_after_an_emergency_stop_powers_on_and_releases_the_brakes_once_the_button_is_released(
+    robot_and_fake,
+):
+    robot, fake = robot_and_fake
+    X0 = robot.get_X_base_tool()
+    fake.inject("emergency_stop")
+    deadline = time.monotonic() + 2.0
+    while not robot.state().emergency_stop and time.monotonic() < deadline:
+        time.sleep(0.01)
+    with pytest.raises(EmergencyStop, match="still engaged"):  # the button is still pressed
+        robot.reset_faults(timeout_s=5.0)
+    assert fake.snapshot()["robot_mode"] == 3  # POWER_OFF
+    assert dashboard_commands(fake) == [
+        ("close safety popup", "closing safety popup"),
+        ("power on", "Failed to execute: power on"),
+    ]
+    fake.clear_faults()  # the button is released: the stop stays latched, the arm powered off
+    assert robot.state().mode == RobotMode.EMERGENCY_STOP
+    robot.reset_faults(timeout_s=10.0)
+    assert [c for c, _reply in dashboard_commands(fake)[2:]] == ["close safety popup", "power on", "brake release"]
+    snap = fake.snapshot()
+    assert (snap["robot_mode"], snap["emergency_stop"], snap["program_running"]) == (7, False, True)
+    assert robot.state().mode == RobotMode.IDLE
+    # the arm booted (0.5 s) before the brakes were released (0.5 s), and the control script came after both
+    powered_on, released = event_time(fake, "powered_on"), event_time(fake, "brakes_released")
+    assert powered_on - event_time(fake, "power_on") >= 0.5 and released - event_time(fake, "brake_release") >= 0.5
+    programs = [e["t"] for e in fake.events() if e["kind"] == "program"]  # at connect, then after the release
+    assert len(programs) == 2 and programs[1] >= released
+    robot.move_linear(offset(X0, dz=0.01), speed_m_s=0.1, timeout_s=10)
+    assert_pose_close(robot.get_X_base_tool(), offset(X0, dz=0.01))
+
+
+@pytest.mark.timeout(30)
+def test_reset_faults_unlocks_a_protective_stop_as_soon_as_the_controller_allows_it(robot_and_fake):
+    robot, fake = robot_and_fake
+    X0 = robot.get_X_base_tool()
+    robot.reset_faults()  # nothing to recover: no dashboard command
+    assert dashboard_commands(fake) == []
+    fake.inject("protective_stop")
+    deadline = time.monotonic() + 2.0
+    while not robot.state().protective_stop and time.monotonic() < deadline:
+        time.sleep(0.01)
+    robot.reset_faults(timeout_s=10.0)  # at once: the fake, like a CB3, refuses the unlock for 0.5 s
+    commands = dashboard_commands(fake)
+    assert commands[0] == ("close safety popup", "closing safety popup")
+    assert [c for c, _reply in commands[1:]] == ["unlock protective stop"] * (len(commands) - 1)
+    assert commands[1][1].startswith("Cannot unlock protective stop until 0.5s after occurrence")
+    assert commands[-1][1] == "Protective stop releasing"
+    waited = event_time(fake, "protective_stop_unlocked") - event_time(fake, "protective_stop")
+    assert 0.5 <= waited < 0.5 + 1.0  # asked again every 0.25 s: accepted soon after the delay, not at the timeout
+    snap = fake.snapshot()
+    assert (snap["protective_stop"], snap["robot_mode"], snap["program_running"]) == (False, 7, True)
+    robot.move_linear(offset(X0, dz=0.01), speed_m_s=0.1, timeout_s=10)
+    assert_pose_close(robot.get_X_base_tool(), offset(X0, dz=0.01))
 
 
 @pytest.mark.timeout(30)
