@@ -332,11 +332,13 @@ def support_plane(
 ) -> tuple[FloatArray, FloatArray] | None:
     """The table or fixture plate the workpiece stands on: the dominant plane of the background pixels
     (RANSAC on a sample), when it holds at least a third of them. (centroid, unit normal) or None."""
-    bg = organized[(labels < 0) & np.isfinite(organized[..., 2])].astype(np.float64)
-    if len(bg) < 500:
+    # every 4th pixel each way is plenty for a plane, and 16 times cheaper to gather and sample
+    pts, lab = organized[::4, ::4], labels[::4, ::4]
+    bg = pts[(lab < 0) & np.isfinite(pts[..., 2])].astype(np.float64)
+    if len(bg) < 100:
         return None
     rng = np.random.default_rng(seed)
-    sample = bg[rng.choice(len(bg), min(3000, len(bg)), replace=False)]
+    sample = bg[rng.choice(len(bg), 3000, replace=False)] if len(bg) > 3000 else bg
     best_n, best = 0, None
     for _ in range(60):
         a, b, c = sample[rng.choice(len(sample), 3, replace=False)]
