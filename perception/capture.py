@@ -217,11 +217,13 @@ def backproject(depth_m: NDArray[np.floating[Any]], intrinsics: CameraIntrinsics
     """
     z = np.asarray(depth_m, dtype=np.float64)
     h, w = z.shape
-    u = np.arange(w, dtype=np.float64)
-    v = np.arange(h, dtype=np.float64)
-    x = (u[None, :] - intrinsics.cx) / intrinsics.fx * z
-    y = (v[:, None] - intrinsics.cy) / intrinsics.fy * z
-    return np.stack([x, y, z], axis=-1).astype(np.float32)
+    ray_x = (np.arange(w, dtype=np.float64) - intrinsics.cx) / intrinsics.fx
+    ray_y = (np.arange(h, dtype=np.float64) - intrinsics.cy) / intrinsics.fy
+    out = np.empty((h, w, 3), np.float32)  # computed in float64, stored once (no stacked temporaries)
+    np.multiply(ray_x[None, :], z, out=out[..., 0])
+    np.multiply(ray_y[:, None], z, out=out[..., 1])
+    out[..., 2] = z
+    return out
 
 
 def _check_prompts(prompts: Any, intr: CameraIntrinsics, src: str | None) -> FloatArray:
