@@ -278,39 +278,37 @@ class SeamROI:
 def seam_roi(labels: NDArray[np.int32], *, band_px: int, work_factor: int = 2, min_pair_px: int = 20) -> SeamROI:
     """The bands where two surface masks meet (computed at 1/``work_factor`` resolution)."""
     import cv2
+    from scipy import ndimage
 
     H, W = labels.shape
     f = max(1, work_factor)
     small = np.ascontiguousarray(labels[::f, ::f])
     r = max(1, round(band_px / f))
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    K = int(small.max(initial=-1)) + 1
     h, w = small.shape
     count = np.zeros((h, w), np.uint8)
-    dil: dict[int, NDArray[np.bool_]] = {}
-    boxes: dict[int, tuple[int, int, int, int]] = {}
-    for k in range(K):
-        m = small == k
-        if not m.any():
+    # each mask is dilated inside its own padded bounding box (find_objects: one pass for all labels)
+    dil: dict[int, tuple[tuple[int, int, int, int], NDArray[np.bool_]]] = {}
+    for k, sl in enumerate(ndimage.find_objects(small + 1)):  # label k is object k + 1 (-1 is background)
+        if sl is None:
             continue
-        ys, xs = np.nonzero(m)
-        y0, y1 = max(ys.min() - r - 1, 0), min(ys.max() + r + 2, h)
-        x0, x1 = max(xs.min() - r - 1, 0), min(xs.max() + r + 2, w)
-        d = np.zeros((h, w), bool)
-        d[y0:y1, x0:x1] = cv2.dilate(m[y0:y1, x0:x1].astype(np.uint8), kernel).astype(bool)
-        dil[k] = d
-        boxes[k] = (y0, y1, x0, x1)
-        count[y0:y1, x0:x1] += d[y0:y1, x0:x1]
+        y0, y1 = max(sl[0].start - r - 1, 0), min(sl[0].stop + r + 1, h)
+        x0, x1 = max(sl[1].start - r - 1, 0), min(sl[1].stop + r + 1, w)
+        m = (small[y0:y1, x0:x1] == k).astype(np.uint8)
+        d = cv2.dilate(m, kernel).astype(bool)
+        dil[k] = ((y0, y1, x0, x1), d)
+        count[y0:y1, x0:x1] += d
     pairs: dict[tuple[int, int], int] = {}
     keys = sorted(dil)
     for a_i, a in enumerate(keys):
-        ya0, ya1, xa0, xa1 = boxes[a]
+        (ya0, ya1, xa0, xa1), da = dil[a]
         for b in keys[a_i + 1 :]:
-            yb0, yb1, xb0, xb1 = boxes[b]
+            (yb0, yb1, xb0, xb1), db = dil[b]
             y0, y1, x0, x1 = max(ya0, yb0), min(ya1, yb1), max(xa0, xb0), min(xa1, xb1)
             if y0 >= y1 or x0 >= x1:
                 continue
-            n = int((dil[a][y0:y1, x0:x1] & dil[b][y0:y1, x0:x1]).sum())
+            both = da[y0 - ya0 : y1 - ya0, x0 - xa0 : x1 - xa0] & db[y0 - yb0 : y1 - yb0, x0 - xb0 : x1 - xb0]
+            n = int(both.sum())
             if n >= min_pair_px:
                 pairs[(a, b)] = n
     band_small = count >= 2
