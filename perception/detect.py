@@ -279,20 +279,30 @@ def _butt_seams(
     out: list[SeamGeometry] = []
     if params.method == "paper":
         return out  # the paper's fine stage has no butt-joint step
+    from scipy import ndimage
+
     cos_max = np.cos(np.radians(2 * params.seams.max_coplanar_deg))
-    band_pts: FloatArray | None = None
-    band_lab: NDArray[np.int32] | None = None
+    boxes: list[Any] | None = None
     for i, j in sorted(pairs):
         pi, pj = voxel_planes.get(i), voxel_planes.get(j)
         if pi is None or pj is None or abs(pi[1] @ pj[1]) < cos_max:
             continue
         if abs((pj[0] - pi[0]) @ pi[1]) > 0.004 + pi[2] + pj[2]:
             continue
-        if band_pts is None or band_lab is None:
-            band_pts = organized[band].astype(np.float64)
-            band_lab = label_image[band]
-        pa, pb = band_pts[band_lab == i], band_pts[band_lab == j]
-        scanlines = partial(_scanlines, organized, band, label_image, (i, j))
+        if boxes is None:
+            boxes = ndimage.find_objects(label_image + 1)  # label k: object k + 1, index k
+        if i >= len(boxes) or j >= len(boxes) or boxes[i] is None or boxes[j] is None:
+            continue
+        # the joint lies where the two masks meet: work inside their joint bounding box only
+        bi, bj = boxes[i], boxes[j]
+        crop = (
+            slice(min(bi[0].start, bj[0].start), max(bi[0].stop, bj[0].stop)),
+            slice(min(bi[1].start, bj[1].start), max(bi[1].stop, bj[1].stop)),
+        )
+        org_c, band_c, lab_c = organized[crop], band[crop], label_image[crop]
+        pa = org_c[band_c & (lab_c == i)].astype(np.float64)
+        pb = org_c[band_c & (lab_c == j)].astype(np.float64)
+        scanlines = partial(_scanlines, org_c, band_c, lab_c, (i, j))
         res = butt_from_surfaces(pa, pb, scanlines, params.seams, viewpoint)
         if res is None:
             continue

@@ -909,8 +909,9 @@ def butt_from_surfaces(
     """
     if len(pa) < 30 or len(pb) < 30:
         return None
-    ca, na, rms_a, _ = fit_plane_robust(pa, sigma_gate=params.plane_gate_sigma)
-    cb, nb, rms_b, _ = fit_plane_robust(pb, sigma_gate=params.plane_gate_sigma)
+    # the plane tests need a few thousand points, not a mask's tens of thousands (evenly thinned)
+    ca, na, rms_a, _ = fit_plane_robust(pa[:: max(1, len(pa) // 4000)], sigma_gate=params.plane_gate_sigma)
+    cb, nb, rms_b, _ = fit_plane_robust(pb[:: max(1, len(pb) // 4000)], sigma_gate=params.plane_gate_sigma)
     if max(rms_a, rms_b) > params.butt_max_rms_m:
         return None  # not plates: curved or mixed surfaces
     if abs(na @ nb) < np.cos(np.radians(params.max_coplanar_deg)):
