@@ -30,7 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     d.set_defaults(func=run_demo)
 
 
-VALIDATED_VOXEL_MM = (3.0, 5.0)  # weldcell bench voxel sweep (ribs, pipe, stereo): every seam found, max error <= 0.8 mm
+VALIDATED_VOXEL_MM = (3.0, 5.0)  # bench voxel sweep (ribs, pipe, stereo): every seam found, max error <= 0.8 mm
 
 
 def _add_detect_options(p: argparse.ArgumentParser) -> None:
