@@ -17,11 +17,23 @@ and the config refuses a non-loopback ``host`` without a token)::
     GET  /status.png             that overlay (PNG)
     GET  /metrics                Prometheus text format
 
+Test only, with ``weldcell serve --sim-faults`` (``Daemon(sim_faults=True)``), which is refused unless every device
+is a simulator this daemon started itself (:meth:`cell.factory.Cell.fault_injectors`)::
+
+    GET  /sim/faults             the simulated devices, the faults each supports and the faults injected
+    POST /sim/faults             {"device": "robot" | "track" | "camera", "fault": "...", "params": {...}}: switch a
+                                 fault of that simulator on (``sim_fakes.faults``): a soak or a test plays the
+                                 broken device, the cell reacts as it would to the real one
+    POST /sim/faults/clear       {"device": ...} or {}: switch that simulator's (every simulator's) faults off; a
+                                 latched stop or drive fault stays latched until POST /acknowledge clears it
+
+Without the switch these paths answer 404 and no fault switch exists in the process.
+
 Jobs wait in a FIFO queue; while the cell is in fault they wait for the acknowledgement. Everything goes to the
 journal (cell.journal); a job found queued or running when the daemon starts (it was killed) is reported as
 ``interrupted`` and never resumed. :meth:`Daemon.shutdown` (SIGTERM, Ctrl-C) stops the motion and switches the arc
 off through the state machine's ``fault_now`` before anything else, cancels the queued jobs, then closes the
-devices and the journal.
+devices and the journal; the arc output is then switched off once more and read back (:attr:`Daemon.arc_on_at_exit`).
 """
 
 from __future__ import annotations
@@ -43,7 +55,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from cell.config import CellConfig
 from cell.errors import ConfigError, WeldcellError
-from cell.factory import Cell, build_cell
+from cell.factory import Cell, build_cell, real_devices
 from cell.job import Job, job_from_text, load_job
 from cell.journal import JobRecord, Journal
 from cell.machine import PAUSABLE, CellState
@@ -74,9 +86,29 @@ class _Approval:
 
 class Daemon:
     """The cell service. ``cell``: devices to use (None: built from ``config``, starting its simulators when
-    ``start_simulators``). Call :meth:`start`, then :meth:`shutdown` (or use it as a context manager)."""
+    ``start_simulators``). ``sim_faults``: serve the test-only ``/sim/faults`` endpoints (ConfigError unless every
+    device is a simulator started here). Call :meth:`start`, then :meth:`shutdown` (or use it as a context
+    manager)."""
 
-    def __init__(self, config: CellConfig, *, start_simulators: bool = True, cell: Cell | None = None) -> None:
+    def __init__(
+        self,
+        config: CellConfig,
+        *,
+        start_simulators: bool = True,
+        cell: Cell | None = None,
+        sim_faults: bool = False,
+    ) -> None:
+        if sim_faults:  # refused before anything is opened or connected
+            real = real_devices(config)
+            if real:
+                raise ConfigError(
+                    f"{config.source or 'the config'}: --sim-faults is for simulated cells only, and "
+                    f"{', '.join(real)} is real hardware"
+                )
+            if cell is None and not start_simulators:
+                raise ConfigError(
+                    "--sim-faults needs the simulators this daemon starts: it cannot be combined with --no-sims"
+                )
         self.config = config
         dc = config.daemon
         self.journal = Journal(config.resolve(dc.journal))
@@ -90,6 +122,7 @@ class Daemon:
                 self.cell.connect()
             self.runner = JobRunner(self.cell, journal=self.journal, status_image=self.status_image)
             self.runner.switch_arc_off()  # the previous process may have died with the arc on
+            self._fault_injectors: dict[str, Any] | None = self.cell.fault_injectors() if sim_faults else None
         except BaseException:
             if self._own_cell and cell is None and hasattr(self, "cell"):
                 self.cell.close()
@@ -104,6 +137,9 @@ class Daemon:
         self._totals = {"seams_welded": 0, "poses_sent": 0, "arc_time_s": 0.0}
         self._outcomes: dict[str, int] = {}
         self._last_cycle: dict[str, float] = {}
+        self._injected: dict[str, list[dict[str, Any]]] = {}
+        self.arc_on_at_exit: bool | None = None
+        """After :meth:`shutdown`: whether the arc output read on (None: it could not be read back)."""
         self._worker = threading.Thread(target=self._work, name="weldcell-jobs", daemon=True)
         self.server = ThreadingHTTPServer((dc.host, dc.port), _handler(self))
         self.server.daemon_threads = True
@@ -112,6 +148,10 @@ class Daemon:
             logger.warning(
                 "job %d (%s) was interrupted by the previous daemon: not resumed", record.id, record.job_file
             )
+        if self._fault_injectors is not None:
+            logger.warning(
+                "test-only fault injection is on (/sim/faults) for the simulated %s", ", ".join(self._fault_injectors)
+            )
 
     @property
     def address(self) -> tuple[str, int]:
@@ -119,6 +159,7 @@ class Daemon:
         return str(host), int(port)
 
     def start(self) -> Daemon:
+        limit_malloc_arenas()  # before the worker and HTTP threads exist
         self._worker.start()
         self._server_thread.start()
         host, port = self.address
@@ -199,6 +240,7 @@ class Daemon:
             finally:
                 with self._lock:
                     self._current = None
+                release_freed_memory()
 
     def _count(self, report: JobReport) -> None:
         with self._lock:
@@ -233,6 +275,64 @@ class Daemon:
         approval.event.set()
         return True
 
+    # ------------------------------------------------------------------------------------------ test faults
+    @property
+    def sim_faults(self) -> bool:
+        """Whether the test-only ``/sim/faults`` endpoints are served."""
+        return self._fault_injectors is not None
+
+    def sim_fault_view(self) -> dict[str, Any]:
+        """The simulated devices: the faults each supports and those injected since they were last cleared."""
+        injectors = self._fault_injectors or {}
+        with self._lock:
+            injected = {role: list(faults) for role, faults in self._injected.items()}
+        return {
+            "devices": {
+                role: {"supported": sorted(handle.supported_faults), "injected": injected.get(role, [])}
+                for role, handle in injectors.items()
+            }
+        }
+
+    def inject_sim_fault(self, device: str, fault: str, params: dict[str, Any]) -> None:
+        """Switch ``fault`` of the simulated ``device`` on. ConfigError for an unknown device, fault or parameter."""
+        handle = self._sim_device(device)
+        try:
+            handle.inject(fault, **params)
+        except (ValueError, TypeError) as err:
+            raise ConfigError(f"simulated {device}: {err}") from err
+        except (RuntimeError, TimeoutError, OSError) as err:  # a fake (the UR's own process) that does not answer
+            raise WeldcellError(f"the simulated {device} did not take the fault: {err}") from err
+        with self._lock:
+            self._injected.setdefault(device, []).append({"fault": fault, "params": params})
+        self._journal_sim_fault(f"test fault injected into the simulated {device}: {fault} {json.dumps(params)}")
+
+    def clear_sim_faults(self, device: str | None = None) -> list[str]:
+        """Switch the faults of the simulated ``device`` (None: every one) off; returns the devices cleared."""
+        roles = [device] if device is not None else sorted(self._fault_injectors or {})
+        handles = [(role, self._sim_device(role)) for role in roles]
+        for role, handle in handles:
+            try:
+                handle.clear_faults()
+            except (RuntimeError, TimeoutError, OSError) as err:
+                raise WeldcellError(f"the simulated {role} did not clear its faults: {err}") from err
+            with self._lock:
+                self._injected.pop(role, None)
+        self._journal_sim_fault(f"test faults cleared in the simulated {', '.join(roles)}")
+        return roles
+
+    def _sim_device(self, device: str) -> Any:
+        injectors = self._fault_injectors
+        if injectors is None:  # the routes check first; this guards direct calls
+            raise ConfigError("fault injection is off (weldcell serve --sim-faults, simulated cells only)")
+        if device not in injectors:
+            raise ConfigError(f"no simulated device {device!r}; choose one of {sorted(injectors)}")
+        return injectors[device]
+
+    def _journal_sim_fault(self, text: str) -> None:
+        logger.warning("%s", text)
+        state = self.runner.machine.state.value
+        self.journal.record_state_change(self.runner.machine.job_id, state, state, text)
+
     # ------------------------------------------------------------------------------------------ views
     def status(self) -> dict[str, Any]:
         m = self.runner.machine
@@ -257,6 +357,7 @@ class Daemon:
             "queued": queued,
             "recent_jobs": [_job_view(r) for r in self.journal.recent_jobs(self.config.daemon.recent_jobs)],
             "interrupted": [_job_view(r) for r in self.interrupted],
+            "sim_faults": self._fault_injectors is not None,
         }
 
     def job_view(self, job_id: int) -> dict[str, Any]:
@@ -351,12 +452,25 @@ class Daemon:
             )  # fmt: skip
         self._queue.put(None)
         self._worker.join(timeout=30.0)
+        self.arc_on_at_exit = self._confirm_arc_off()
         self.server.shutdown()
         self.server.server_close()
         if self._own_cell:
             self.cell.close()
         self.journal.close()
         logger.info("weldcell daemon stopped (%s)", reason)
+
+    def _confirm_arc_off(self) -> bool | None:
+        """Switch the arc output off once more and read it back: False (off), True (still on), None (unreadable)."""
+        try:
+            self.runner.switch_arc_off()
+            on = self.runner.arc_reads_on()
+        except Exception as err:  # a robot that dropped off: say so, the process must still stop
+            logger.error("cannot read the arc output %d back at shutdown: %s", self.runner.arc_output, err)
+            return None
+        if on:
+            logger.critical("the arc output %d still reads on after switching it off", self.runner.arc_output)
+        return on
 
 
 def _job_view(record: JobRecord) -> dict[str, Any]:
@@ -449,6 +563,8 @@ def _handler(daemon: Daemon) -> type[BaseHTTPRequestHandler]:
                         self._json(HTTPStatus.OK, daemon.job_view(int(found.group(1))))
                     except KeyError:
                         self._error(HTTPStatus.NOT_FOUND, f"no job {found.group(1)}")
+                elif path == "/sim/faults" and daemon.sim_faults:
+                    self._json(HTTPStatus.OK, daemon.sim_fault_view())
                 elif path == "/metrics":
                     self._send(HTTPStatus.OK, daemon.metrics().encode(), "text/plain; version=0.0.4; charset=utf-8")
                 elif path == "/":
@@ -493,6 +609,8 @@ def _handler(daemon: Daemon) -> type[BaseHTTPRequestHandler]:
                     if operator is None:
                         return
                     self._motion_command(path[1:], operator)
+                elif path in ("/sim/faults", "/sim/faults/clear") and daemon.sim_faults:
+                    self._sim_fault_command(path, body)
                 elif path == "/acknowledge":
                     operator = self._operator(body)
                     if operator is None:
@@ -510,6 +628,26 @@ def _handler(daemon: Daemon) -> type[BaseHTTPRequestHandler]:
                 self._error(HTTPStatus.BAD_REQUEST, str(err))
             except WeldcellError as err:
                 self._error(HTTPStatus.SERVICE_UNAVAILABLE, str(err))
+
+        def _sim_fault_command(self, path: str, body: bytes) -> None:
+            """POST /sim/faults {"device", "fault", "params"} or /sim/faults/clear {"device"} (optional)."""
+            try:
+                obj = json.loads(body.decode("utf-8") or "{}")
+            except (UnicodeDecodeError, json.JSONDecodeError) as err:
+                raise ConfigError(f"the request body is not valid JSON: {err}") from err
+            if not isinstance(obj, dict):
+                raise ConfigError('send a JSON object: {"device": ..., "fault": ..., "params": {...}}')
+            device = obj.get("device")
+            if path.endswith("/clear"):
+                if device is not None and not isinstance(device, str):
+                    raise ConfigError('"device" must be a device name (or left out: every simulator)')
+                self._json(HTTPStatus.OK, {"cleared": daemon.clear_sim_faults(device)})
+                return
+            fault, params = obj.get("fault"), obj.get("params", {})
+            if not isinstance(device, str) or not isinstance(fault, str) or not isinstance(params, dict):
+                raise ConfigError('send {"device": "robot" | "track" | "camera", "fault": "<name>", "params": {}}')
+            daemon.inject_sim_fault(device, fault, params)
+            self._json(HTTPStatus.OK, {"device": device, "fault": fault, "params": params})
 
         def _motion_command(self, command: str, operator: str) -> None:
             """pause (motion stopped and arc off now), resume (back to the paused state), abort (retract, the job
@@ -531,3 +669,38 @@ def _handler(daemon: Daemon) -> type[BaseHTTPRequestHandler]:
             self._json(status, {"state": machine.state.value, "fault_reason": machine.fault_reason})
 
     return Handler
+
+
+# ---------------------------------------------------------------------------------------------- memory
+# A daemon that runs for days must not creep. Each job allocates and frees a few hundred MiB of arrays on
+# the worker thread; glibc keeps freed memory in per-thread arenas, so the resident size grew ~0.4 MiB per
+# job over a 100-job soak (scripts/soak.py) with no Python object leaked. Fewer arenas and handing freed
+# memory back after each job keep it flat. Both are no-ops where glibc is absent.
+_M_ARENA_MAX = -8  # mallopt parameter (glibc malloc.h)
+
+
+def _libc() -> Any:
+    import ctypes
+    import ctypes.util
+    import sys
+
+    name = ctypes.util.find_library("c")
+    if not name or not sys.platform.startswith("linux"):
+        return None
+    try:
+        return ctypes.CDLL(name)
+    except OSError:
+        return None
+
+
+def limit_malloc_arenas(arenas: int = 2) -> bool:
+    """Cap glibc's malloc arenas (as MALLOC_ARENA_MAX would); True when it took effect."""
+    libc = _libc()
+    return bool(libc is not None and hasattr(libc, "mallopt") and libc.mallopt(_M_ARENA_MAX, arenas) == 1)
+
+
+def release_freed_memory() -> bool:
+    """Return freed heap memory to the system (glibc malloc_trim); True when some was released."""
+    libc = _libc()
+    return bool(libc is not None and hasattr(libc, "malloc_trim") and libc.malloc_trim(0) == 1)
+

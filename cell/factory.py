@@ -183,6 +183,34 @@ class Cell:
         out.append(("camera", self.camera))
         return out
 
+    def fault_injectors(self) -> dict[str, Any]:
+        """The fault-injection switches of the cell's simulators by role (``robot``, ``track``, ``camera``): each has
+        ``supported_faults``, ``inject(fault, **params)`` and ``clear_faults()`` (``sim_fakes.faults``).
+
+        Test-only. ConfigError unless every device is a simulator and this cell started the robot and track fakes
+        itself: the switches are the fakes' own in-process handles, so no fault can ever be sent to real hardware
+        (nor to the simulators of another process, ``weldcell sim up``)."""
+        real = real_devices(self.config)
+        if real:
+            raise ConfigError(
+                f"{self.config.source or 'the config'}: fault injection is for simulated cells only, and "
+                f"{', '.join(real)} is real hardware"
+            )
+        if self.simulators is None:
+            raise ConfigError(
+                "fault injection needs the simulators in this process: they run elsewhere (--no-sims, "
+                "'weldcell sim up'); inject faults through their own handles there"
+            )
+        handles = {"robot": self.simulators.robot, "track": self.simulators.track, "camera": self.camera}
+        out: dict[str, Any] = {}
+        for role, handle in handles.items():
+            if handle is None:
+                continue  # no track
+            if not all(hasattr(handle, name) for name in ("supported_faults", "inject", "clear_faults")):
+                raise ConfigError(f"the simulated {role} ({type(handle).__name__}) has no fault switch")
+            out[role] = handle
+        return out
+
     def connect(self) -> None:
         """Connect every device, robot first; the first failure propagates (already connected ones stay)."""
         for _role, device in self.devices():
@@ -205,6 +233,18 @@ class Cell:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+def real_devices(config: CellConfig) -> list[str]:
+    """``"robot.kind = 'fanuc'"``-style names of the devices of ``config`` that are real hardware, not simulators."""
+    real = []
+    if not config.robot.kind.startswith("fake-"):
+        real.append(f"robot.kind = {config.robot.kind!r}")
+    if config.track.kind not in ("fake", "none"):
+        real.append(f"track.kind = {config.track.kind!r}")
+    if config.camera.kind != "fake":
+        real.append(f"camera.kind = {config.camera.kind!r}")
+    return real
 
 
 def build_cell(config: CellConfig, *, start_simulators: bool = False) -> Cell:

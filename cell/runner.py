@@ -289,6 +289,16 @@ class JobRunner:
         self._arc_off()
         logger.info("arc output %d switched off", self._arc_index)
 
+    @property
+    def arc_output(self) -> int:
+        """The digital output that switches the arc (the job's ``arc_output``, else the cell's)."""
+        return self._arc_index
+
+    def arc_reads_on(self) -> bool:
+        """Whether the robot reports the arc output on right now (read back through the driver)."""
+        outputs = self.cell.robot.state().digital_outputs
+        return self._arc_index < len(outputs) and bool(outputs[self._arc_index])
+
     def acknowledge(self, operator: str) -> bool:
         """Leave ``fault`` (clearing latched device faults): an operator has seen the fault and fixed its cause."""
         return self.machine.acknowledge(operator)
@@ -694,8 +704,7 @@ class JobRunner:
                 track.reset_fault()
             track.enable(True)
         self._arc_off()
-        outputs = robot.state().digital_outputs
-        if self._arc_index < len(outputs) and outputs[self._arc_index]:
+        if self.arc_reads_on():
             raise DriverError(f"{robot.name}: the arc output {self._arc_index} still reads on after switching it off")
 
     # ------------------------------------------------------------------------------------------ watchdog

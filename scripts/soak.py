@@ -1,28 +1,819 @@
-"""Soak: run many jobs back to back on a simulated cell and watch memory, threads and the journal.
+"""Soak: many jobs back to back on a simulated cell; memory, threads, the journal and the shutdown are checked.
 
-    .venv/bin/python scripts/soak.py                                   # 100 dry runs on the fake FANUC cell
-    .venv/bin/python scripts/soak.py --jobs 20 --weld                  # 20 welded jobs (slow: the fakes move)
+    .venv/bin/python scripts/soak.py                                   # 100 jobs through `weldcell serve` (FANUC)
     .venv/bin/python scripts/soak.py --config examples/sim-cell.toml   # the fake UR5 cell
+    .venv/bin/python scripts/soak.py --jobs 30 --weld-every 0          # shorter: welds only to rerun a fault
+    .venv/bin/python scripts/soak.py --in-process --jobs 100           # the job runner alone, in this process
 
-The robot is parked at the job's first capture pose first, so that dry runs (which move nothing) see the part.
-Prints one line every ``--every`` jobs (resident memory, its growth since the first job, threads, outcomes) and
-exits 1 when a job does not end as expected (done for welded jobs, a planned and validated path for dry runs).
+The daemon soak (the default) runs ``weldcell serve --sim-faults --port 0`` on a copy of --config whose fakes take
+free ports and whose journal and status image go to a temporary folder (--workdir keeps them), then submits --jobs
+jobs over HTTP back to back, each a copy of --job (its workpiece renamed ``soak-NNN-<kind>-...`` so that the
+journal names it):
+
+- most are dry runs (``?dry_run=1``: captured where the robot stands, planned and validated, nothing moves);
+- every --weld-every-th job welds, and so does the job after a fault that stopped the torch on the part (the
+  operator runs the part again; it also brings the robot home for the dry runs);
+- every --fault-every-th job is a fault, in turn from --faults: ``camera_timeout`` (the camera stops sending
+  frames before the job), ``connection_drop`` (the robot controller drops its connection before the job),
+  ``protective_stop`` and ``track_fault`` (injected once the arc of a welding job is on), ``unreachable_pose``
+  (a capture pose 3 m away: the job is refused) and ``malformed`` (a bad job file: answered 400, no record).
+
+Faults reach the simulators inside the daemon through its test-only ``/sim/faults`` endpoint (only served with
+``--sim-faults``, which the daemon refuses unless every device is a simulator it started itself). Jobs queue behind
+a faulted cell; the soak then plays the operator: it clears the simulated fault (``POST /sim/faults/clear``) and
+acknowledges (``POST /acknowledge``), and the queue goes on. A fault injected before a job waits until every job
+before it has finished (otherwise it would hit the wrong job).
+
+After the last job it checks every submission against the API (``GET /jobs/{id}``: final state, outcome, error,
+``/metrics`` counts) and, once the daemon has stopped, against the SQLite journal itself (one row per accepted
+job, named by its workpiece, started once). The daemon's resident memory (VmRSS of /proc/PID/status, sampled as
+each job finishes) must not grow by more than --rss-bound-mib after the first --warmup jobs: single samples swing
+by tens of MiB (the next job is often rendering and detecting), so the lowest sample of the first and of the last
+ten after warm-up are compared. Its thread count when idle must stay the same. The samples go to samples.json
+in the work folder. (glibc keeps memory the job worker freed in that thread's arena: with the default arenas the
+floor wandered by tens of MiB over 100 jobs, with MALLOC_ARENA_MAX=2 in the environment, which the daemon
+inherits, it stayed within the bound.) Finally a welding job is submitted and the daemon gets SIGTERM once its arc is on
+(--no-sigterm-probe: when idle): it must exit 0, print that the arc output reads off, and journal that job as
+failed by SIGTERM.
+
+Prints one line every --every finished jobs and a summary; exits 1 on any failure.
+
+The in-process mode (--in-process) is the earlier soak: dry runs (or --weld) through one JobRunner in this
+process, the robot parked at the job's first capture pose first.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import json
+import math
+import os
+import re
+import signal
+import sqlite3
+import subprocess
 import sys
 import tempfile
 import threading
 import time
+import tomllib
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, TextIO
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+DEFAULT_FAULTS = (
+    "camera_timeout",
+    "track_fault",
+    "protective_stop",
+    "connection_drop",
+    "unreachable_pose",
+    "malformed",
+)
+OPERATOR = "soak"
+FINAL_JOB_STATES = ("done", "failed", "cancelled", "interrupted")
 
+
+# ================================================================================================ the plan
+@dataclass(frozen=True)
+class FaultKind:
+    """One kind of fault job. ``device``/``fault``/``params``: what is switched on in which simulator (None: the
+    job itself is bad); ``when``: ``"idle"`` (before the job starts), ``"arc_on"`` (once its first arc is on) or
+    ``"never"``; ``weld``: the job welds (else a dry run); ``state``/``outcome``/``error``: the expected journal
+    state, report outcome and a piece of the error (``outcome`` None: refused at submission with a 4xx)."""
+
+    name: str
+    device: str | None
+    fault: str | None
+    params: dict[str, Any]
+    when: str
+    weld: bool
+    state: str
+    outcome: str | None
+    error: str
+
+
+FAULTS: dict[str, FaultKind] = {
+    f.name: f
+    for f in (
+        FaultKind("camera_timeout", "camera", "frame_timeout", {}, "idle", False, "failed", "fault", "no frame within"),
+        FaultKind(
+            "connection_drop", "robot", "drop_connection", {}, "idle", False, "failed", "fault", "ConnectionLost"
+        ),
+        FaultKind("protective_stop", "robot", "protective_stop", {}, "arc_on", True, "failed", "fault", "protective"),
+        FaultKind(
+            "track_fault", "track", "track_fault", {"code": 0x7310}, "arc_on", True, "failed", "fault", "fault latched"
+        ),
+        FaultKind("unreachable_pose", None, None, {}, "never", False, "failed", "refused", "beyond the reach radius"),
+        FaultKind("malformed", None, None, {}, "never", False, "", None, ""),
+    )
+}
+
+
+@dataclass(frozen=True)
+class PlannedJob:
+    """Job ``index`` (1-based) of the soak: ``kind`` is ``"dry"``, ``"weld"`` or a fault name; ``occurrence``: how
+    many faults of that kind came before it."""
+
+    index: int
+    kind: str
+    weld: bool
+    fault: FaultKind | None = None
+    occurrence: int = 0
+
+
+def plan_jobs(n_jobs: int, *, fault_every: int, weld_every: int, faults: tuple[str, ...]) -> list[PlannedJob]:
+    """The soak's jobs: a fault every ``fault_every`` (in turn from ``faults``), a weld every ``weld_every`` and
+    after a fault that stopped the torch on the part, dry runs otherwise (0: never)."""
+    unknown = [name for name in faults if name not in FAULTS]
+    if unknown:
+        raise ValueError(f"unknown fault kinds {unknown}; choose from {sorted(FAULTS)}")
+    plan: list[PlannedJob] = []
+    rerun = False
+    seen: collections.Counter[str] = collections.Counter()
+    for i in range(1, n_jobs + 1):
+        if fault_every and faults and i % fault_every == 0:
+            f = FAULTS[faults[sum(seen.values()) % len(faults)]]
+            plan.append(PlannedJob(i, f.name, f.weld, f, seen[f.name]))
+            seen[f.name] += 1
+            rerun = f.when == "arc_on"
+        elif rerun or (weld_every and i % weld_every == 0):
+            plan.append(PlannedJob(i, "weld", True))
+            rerun = False
+        else:
+            plan.append(PlannedJob(i, "dry", False))
+    return plan
+
+
+# ================================================================================================ TOML files
+def toml_dumps(data: dict[str, Any]) -> str:
+    """TOML text of ``data`` (tables of scalars, lists, nested tables; arrays of tables). Comments are not kept."""
+
+    def key(k: str) -> str:
+        return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
+
+    def value(v: Any) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, int):
+            return str(v)
+        if isinstance(v, float):
+            if math.isnan(v):
+                return "nan"
+            return ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, list):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        if isinstance(v, dict):
+            return "{" + ", ".join(f"{key(k)} = {value(x)}" for k, x in v.items()) + "}"
+        raise TypeError(f"cannot write {type(v).__name__} as TOML")
+
+    def is_table_array(v: Any) -> bool:
+        return isinstance(v, list) and bool(v) and all(isinstance(x, dict) for x in v)
+
+    lines: list[str] = []
+
+    def table(path: list[str], body: dict[str, Any], header: str | None) -> None:
+        if header is not None:
+            lines.extend(["", header])
+        for k, v in body.items():
+            if not isinstance(v, dict) and not is_table_array(v):
+                lines.append(f"{key(k)} = {value(v)}")
+        for k, v in body.items():
+            if isinstance(v, dict):
+                name = ".".join(key(p) for p in [*path, k])
+                table([*path, k], v, f"[{name}]")
+        for k, v in body.items():
+            if is_table_array(v):
+                name = ".".join(key(p) for p in [*path, k])
+                for item in v:
+                    lines.extend(["", f"[[{name}]]"])
+                    lines.extend(f"{key(ik)} = {value(iv)}" for ik, iv in item.items())
+
+    table([], data, None)
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def soak_config(config_path: Path, workdir: Path) -> tuple[Path, dict[str, Any]]:
+    """A copy of the cell config in ``workdir``: the fakes on free ports (the fake UR keeps its fixed ones), journal
+    and status image in ``workdir``, the file paths it names made absolute. Returns (path, its data)."""
+    data = tomllib.loads(config_path.read_text(encoding="utf-8"))
+    base = config_path.resolve().parent
+    robot, track = data.setdefault("robot", {}), data.setdefault("track", {})
+    if robot.get("kind") == "fake-fanuc":
+        robot["port"] = 0
+    if track.get("kind") == "fake":
+        track["port"] = 0
+    camera = data.get("camera", {})
+    if camera.get("playback"):
+        camera["playback"] = [str((base / p).resolve()) for p in camera["playback"]]
+    hand_eye = data.get("hand_eye", {})
+    if isinstance(hand_eye.get("path"), str):
+        hand_eye["path"] = str((base / hand_eye["path"]).resolve())
+    daemon = data.setdefault("daemon", {})
+    daemon["journal"] = str(workdir / "journal.sqlite3")
+    daemon["status_image"] = str(workdir / "status.png")
+    path = workdir / "cell.toml"
+    path.write_text(f"# soak copy of {config_path}\n" + toml_dumps(data), encoding="utf-8")
+    return path, data
+
+
+def job_variant(job: dict[str, Any], planned: PlannedJob) -> str:
+    """The TOML of ``planned``: the job renamed ``soak-NNN-<kind>-<workpiece>``; for ``unreachable_pose`` its first
+    capture pose 3 m away; for ``malformed`` an unknown key or broken TOML (by turns)."""
+    data = json.loads(json.dumps(job))  # a deep copy
+    data["workpiece"] = f"soak-{planned.index:03d}-{planned.kind}-{job.get('workpiece', 'job')}"
+    if planned.kind == "unreachable_pose":
+        capture = data["capture"][0]
+        if "xyzwpr_mm_deg" in capture:
+            capture["xyzwpr_mm_deg"] = [0.0, 3000.0, 400.0, *capture["xyzwpr_mm_deg"][3:]]
+        else:
+            capture["xyz_m"] = [0.0, 3.0, 0.4]
+    text = toml_dumps(data)
+    if planned.kind == "malformed":
+        if planned.occurrence % 2:
+            return text[: len(text) // 2] + "\n[[capture]\n"  # a torn upload
+        return text + "\n[welding_parameters]\ncurrent_a = 180\n"  # a table no job file has
+    return text
+
+
+# ================================================================================================ the daemon
+class ServedDaemon:
+    """``weldcell serve --config CONFIG --port 0 --sim-faults`` as a child process; its output goes to ``log``."""
+
+    def __init__(self, config: Path, log: Path) -> None:
+        exe = Path(sys.executable).with_name("weldcell")
+        cmd = [str(exe)] if exe.is_file() else [sys.executable, "-m", "cell.cli"]
+        self.cmd = [*cmd, "serve", "--config", str(config), "--port", "0", "--sim-faults"]
+        self.log = log.open("w", encoding="utf-8")
+        self.proc = subprocess.Popen(
+            self.cmd,
+            cwd=REPO,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self._new_line = threading.Condition()
+        self._reader = threading.Thread(target=self._read, name="soak-daemon-output", daemon=True)
+        self._reader.start()
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.log.write(line)
+            self.log.flush()
+            with self._new_line:
+                self.lines.append(line.rstrip("\n"))
+                self._new_line.notify_all()
+        with self._new_line:
+            self._new_line.notify_all()
+
+    def wait_line(self, pattern: str, timeout_s: float) -> re.Match[str]:
+        """The first output line matching ``pattern`` (a regex), waiting up to ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        seen = 0
+        with self._new_line:
+            while True:
+                for line in self.lines[seen:]:
+                    found = re.search(pattern, line)
+                    if found:
+                        return found
+                seen = len(self.lines)
+                left = deadline - time.monotonic()
+                if left <= 0 or (self.proc.poll() is not None and not self._reader.is_alive()):
+                    tail = "\n".join(self.lines[-15:])
+                    raise RuntimeError(f"the daemon printed no {pattern!r} within {timeout_s:.0f} s:\n{tail}")
+                self._new_line.wait(min(left, 0.5))
+
+    def proc_status(self) -> tuple[float, int]:
+        """(resident memory MiB, threads) of the daemon now, from /proc/PID/status."""
+        fields = {}
+        for line in Path(f"/proc/{self.pid}/status").read_text().splitlines():
+            name, _, rest = line.partition(":")
+            fields[name] = rest.split()
+        return int(fields["VmRSS"][0]) / 1024.0, int(fields["Threads"][0])
+
+    def stop(self, timeout_s: float = 60.0) -> int:
+        """SIGTERM, then wait for the exit code (SIGKILL after ``timeout_s``: then the code is negative)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=10)
+        self._reader.join(timeout=5)
+        return int(self.proc.returncode)
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=10)
+        self._reader.join(timeout=5)
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        self.log.close()
+
+
+class Client:
+    """JSON over HTTP to the daemon at ``base`` (with its bearer ``token`` if it has one)."""
+
+    def __init__(self, base: str, token: str | None = None) -> None:
+        self.base = base
+        self.headers = {"Authorization": f"Bearer {token}"} if token else {}
+
+    def call(self, method: str, path: str, body: bytes | None = None, content_type: str = "application/json") -> Any:
+        """(status, decoded JSON body)."""
+        headers = dict(self.headers)
+        if body is not None:
+            headers["Content-Type"] = content_type
+        req = urllib.request.Request(self.base + path, data=body, method=method, headers=headers)
+        try:
+            with urllib.request.urlopen(req, timeout=30) as resp:
+                status, data = resp.status, resp.read()
+        except urllib.error.HTTPError as err:
+            status, data = err.code, err.read()
+        return status, (json.loads(data) if data[:1] in (b"{", b"[") else data.decode())
+
+    def get(self, path: str) -> Any:
+        status, answer = self.call("GET", path)
+        if status != 200:
+            raise RuntimeError(f"GET {path}: {status} {answer}")
+        return answer
+
+    def post(self, path: str, obj: Any) -> tuple[int, Any]:
+        status, answer = self.call("POST", path, json.dumps(obj).encode())
+        return int(status), answer
+
+
+# ================================================================================================ the soak
+@dataclass
+class Submission:
+    """One submission: its plan entry, the HTTP answer (``job_id`` None when refused) and what became of it."""
+
+    planned: PlannedJob
+    status: int
+    job_id: int | None
+    error: str | None = None
+    injected: bool = False
+    view: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True)
+class Sample:
+    """The daemon after ``finished`` jobs, ``t_s`` seconds into the soak: VmRSS (MiB) and threads."""
+
+    finished: int
+    t_s: float
+    rss_mib: float
+    threads: int
+
+
+@dataclass
+class SoakResult:
+    """What a daemon soak saw; ``failures`` is empty when every check passed."""
+
+    submissions: list[Submission] = field(default_factory=list)
+    samples: list[Sample] = field(default_factory=list)
+    idle_samples: list[Sample] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)
+    acknowledged: int = 0
+    injected: int = 0
+    wall_s: float = 0.0
+    api_records: int = 0
+    db_rows: int = 0
+    db_started_once: int = 0
+    probe_id: int | None = None
+    probe_error: str | None = None
+    exit_code: int | None = None
+    arc_line: str | None = None
+    rss_window: int = 0
+    rss_floor_start: Sample | None = None
+    rss_floor_end: Sample | None = None
+    rss_growth_mib: float = 0.0
+
+    @property
+    def accepted(self) -> list[Submission]:
+        return [s for s in self.submissions if s.job_id is not None]
+
+    def outcomes_by_kind(self) -> dict[str, collections.Counter[str]]:
+        out: dict[str, collections.Counter[str]] = {}
+        for s in self.submissions:
+            if s.job_id is None:
+                got = f"http {s.status}"
+            elif s.view is None or s.view.get("report") is None:
+                got = f"{(s.view or {}).get('state', '?')} (no report)"
+            else:
+                got = str(s.view["report"]["outcome"])
+            out.setdefault(s.planned.kind, collections.Counter())[got] += 1
+        return out
+
+
+class DaemonSoak:
+    """One soak run: see the module docstring. ``out``: where the progress lines go."""
+
+    def __init__(
+        self,
+        client: Client,
+        daemon: ServedDaemon,
+        plan: list[PlannedJob],
+        job: dict[str, Any],
+        *,
+        every: int,
+        stall_s: float,
+        out: TextIO,
+    ) -> None:
+        self.client = client
+        self.daemon = daemon
+        self.plan = plan
+        self.job = job
+        self.every = every
+        self.stall_s = stall_s
+        self.out = out
+        self.result = SoakResult()
+        self.outstanding: collections.deque[Submission] = collections.deque()
+        self.t0 = time.monotonic()
+        self.finished = 0
+        self.outcomes: collections.Counter[str] = collections.Counter()
+
+    def fail(self, text: str) -> None:
+        self.result.failures.append(text)
+        print(f"FAIL: {text}", file=self.out, flush=True)
+
+    # ------------------------------------------------------------------------------------------ submitting
+    def run(self) -> None:
+        for planned in self.plan:
+            fault = planned.fault
+            if fault is not None and fault.when == "idle":
+                self.drain()  # the fault must hit this job, not one queued before it
+                self.inject(fault)
+            self.submit(planned)
+            self.operate()
+        self.drain()
+
+    def submit(self, planned: PlannedJob) -> None:
+        text = job_variant(self.job, planned).encode()
+        query = "" if planned.weld else "?dry_run=1"
+        status, answer = self.client.call("POST", f"/jobs{query}", text, content_type="application/toml")
+        error = answer.get("error") if isinstance(answer, dict) else str(answer)
+        if status == 201:
+            sub = Submission(planned, status, int(answer["id"]))
+            self.outstanding.append(sub)
+        else:
+            sub = Submission(planned, status, None, error)
+            if planned.kind != "malformed":
+                self.fail(f"job {planned.index} ({planned.kind}): POST /jobs answered {status}: {error}")
+        self.result.submissions.append(sub)
+
+    def inject(self, fault: FaultKind) -> None:
+        status, answer = self.client.post(
+            "/sim/faults", {"device": fault.device, "fault": fault.fault, "params": fault.params}
+        )
+        if status != 200:
+            self.fail(f"injecting {fault.name}: {status} {answer}")
+        else:
+            self.result.injected += 1
+
+    # ------------------------------------------------------------------------------------------ the operator
+    def operate(self) -> None:
+        """One look at the cell: acknowledge a fault (after clearing the simulated one), inject a fault due once a
+        job's arc is on, and collect the jobs that finished (in order: the queue is FIFO)."""
+        st = self.client.get("/status")
+        if st["state"] == "fault":
+            self.client.post("/sim/faults/clear", {})
+            status, answer = self.client.post("/acknowledge", {"operator": OPERATOR})
+            if status == 200 and answer.get("state") == "idle":
+                self.result.acknowledged += 1
+            else:
+                self.fail(f"acknowledging {st['fault_reason']!r}: {status} {answer}")
+            st = self.client.get("/status")
+        current = st["current_job"]
+        if current is not None and st["state"] == "welding":
+            for sub in self.outstanding:
+                fault = sub.planned.fault
+                if sub.job_id == current["id"] and fault is not None and fault.when == "arc_on" and not sub.injected:
+                    events = self.client.get(f"/jobs/{sub.job_id}")["events"]
+                    if any(e["reason"].endswith(": arc on") for e in events):
+                        self.inject(fault)
+                        sub.injected = True
+        while self.outstanding:
+            sub = self.outstanding[0]
+            view = self.client.get(f"/jobs/{sub.job_id}")
+            if view["state"] not in FINAL_JOB_STATES:
+                break
+            if view["report"] is None:  # the report follows the final state, unless the runner never ran it
+                now = self.client.get("/status")["current_job"]
+                if now is not None and now["id"] == sub.job_id:
+                    break
+                view = self.client.get(f"/jobs/{sub.job_id}")  # the worker has let go of it: its last word
+            self.outstanding.popleft()
+            sub.view = view
+            self.job_finished(sub)
+
+    def job_finished(self, sub: Submission) -> None:
+        self.finished += 1
+        report = (sub.view or {}).get("report") or {}
+        self.outcomes[str(report.get("outcome", sub.view and sub.view["state"]))] += 1
+        rss, threads = self.daemon.proc_status()
+        sample = Sample(self.finished, time.monotonic() - self.t0, rss, threads)
+        self.result.samples.append(sample)
+        if self.every and (self.finished % self.every == 0 or self.finished == len(self.result.accepted)):
+            print(
+                f"{self.finished:4d} jobs  {sample.t_s:7.1f} s  rss {rss:7.1f} MiB  threads {threads:3d}  "
+                f"acks {self.result.acknowledged:2d}  {dict(sorted(self.outcomes.items()))}",
+                file=self.out,
+                flush=True,
+            )
+
+    def drain(self) -> None:
+        """Operate until every submitted job has finished and the cell is idle, nothing queued; then sample the
+        idle daemon."""
+        last_progress, finished = time.monotonic(), self.finished
+        while True:
+            self.operate()
+            if self.finished != finished:
+                last_progress, finished = time.monotonic(), self.finished
+            if not self.outstanding:
+                st = self.client.get("/status")
+                if st["current_job"] is None and not st["queued"] and st["state"] != "fault":
+                    break
+            if time.monotonic() - last_progress > self.stall_s:
+                waiting = [s.job_id for s in self.outstanding]
+                raise RuntimeError(f"no job finished for {self.stall_s:.0f} s; waiting for {waiting}")
+            time.sleep(0.1)
+        time.sleep(0.3)  # the last requests' handler threads end
+        rss, threads = self.daemon.proc_status()
+        self.result.idle_samples.append(Sample(self.finished, time.monotonic() - self.t0, rss, threads))
+
+    # ------------------------------------------------------------------------------------------ checks
+    def check_api(self) -> None:
+        """Every submission's final state, outcome and error through the API, and the /metrics counters."""
+        expected_outcomes: collections.Counter[str] = collections.Counter()
+        for sub in self.result.submissions:
+            p, f = sub.planned, sub.planned.fault
+            if p.kind == "malformed":
+                ok = 400 <= sub.status < 500 and any(k in (sub.error or "") for k in ("unknown key", "malformed TOML"))
+                if not ok:
+                    self.fail(f"job {p.index} (malformed): want a 4xx naming the problem, got {sub.status} {sub.error}")
+                continue
+            if sub.job_id is None:
+                continue  # already failed at submission
+            view = self.client.get(f"/jobs/{sub.job_id}")
+            sub.view = view
+            self.result.api_records += 1
+            report = view.get("report") or {}
+            if f is not None:
+                want = (f.state, f.outcome)
+            else:
+                want = ("done", "welded") if p.weld else ("cancelled", "dry_run")
+            got = (view["state"], report.get("outcome"))
+            expected_outcomes[str(want[1])] += 1
+            where = f"job {p.index} (id {sub.job_id}, {p.kind})"
+            if got != want:
+                self.fail(f"{where}: want {want}, got {got}: {view.get('error')}")
+            elif f is not None and f.error.lower() not in (view.get("error") or "").lower():
+                self.fail(f"{where}: the error does not say {f.error!r}: {view.get('error')}")
+            elif p.weld and f is None and not report.get("seams_welded"):
+                self.fail(f"{where}: welded no seam: {report}")
+            elif f is not None and f.when == "arc_on" and not sub.injected:
+                self.fail(f"{where}: the fault was never injected (no arc on seen)")
+        metrics = str(self.client.get("/metrics"))
+        for outcome, n in expected_outcomes.items():
+            line = f'weldcell_jobs_finished_total{{outcome="{outcome}"}} {n}'
+            if line not in metrics:
+                found = re.findall(rf'weldcell_jobs_finished_total{{outcome="{outcome}"}} \d+', metrics)
+                self.fail(f"/metrics: want {line!r}, got {found}")
+
+    def probe_sigterm(self, *, mid_weld: bool, timeout_s: float) -> None:
+        """SIGTERM the daemon (once a welding job's arc is on when ``mid_weld``): exit 0, the arc reads off."""
+        if mid_weld:
+            planned = PlannedJob(len(self.plan) + 1, "sigterm_probe", True)
+            status, answer = self.client.call(
+                "POST", "/jobs", job_variant(self.job, planned).encode(), content_type="application/toml"
+            )
+            if status != 201:
+                self.fail(f"the SIGTERM probe job was refused: {status} {answer}")
+            else:
+                self.result.probe_id = int(answer["id"])
+                deadline = time.monotonic() + timeout_s
+                while time.monotonic() < deadline:
+                    events = self.client.get(f"/jobs/{self.result.probe_id}")["events"]
+                    if any(e["reason"].endswith(": arc on") for e in events):
+                        break
+                    time.sleep(0.1)
+                else:
+                    self.fail(f"the SIGTERM probe job {self.result.probe_id} never switched the arc on")
+        self.result.exit_code = self.daemon.stop()
+        try:
+            found = self.daemon.wait_line(r"arc output \d+ .*", timeout_s=5)
+            self.result.arc_line = found.group(0)
+        except RuntimeError:
+            self.result.arc_line = None
+        if self.result.exit_code != 0:
+            self.fail(f"the daemon exited with {self.result.exit_code} on SIGTERM")
+        if self.result.arc_line is None or not self.result.arc_line.endswith("reads off"):
+            self.fail(f"the daemon did not confirm the arc off at exit: {self.result.arc_line!r}")
+
+    def check_journal(self, path: Path) -> None:
+        """The SQLite journal itself: one row per accepted job (named by its workpiece), each started once."""
+        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            rows = db.execute("SELECT id, job_file, state, error FROM jobs ORDER BY id").fetchall()
+            starts = dict(
+                db.execute(
+                    "SELECT job_id, COUNT(*) FROM events WHERE to_state = 'homing' AND from_state IN ('idle', 'done') "
+                    "GROUP BY job_id"
+                ).fetchall()
+            )
+        finally:
+            db.close()
+        self.result.db_rows = len(rows)
+        by_id = {int(r[0]): r for r in rows}
+        expected = {s.job_id: s for s in self.result.accepted if s.job_id is not None}
+        if self.result.probe_id is not None:
+            expected_ids = {*expected, self.result.probe_id}
+        else:
+            expected_ids = set(expected)
+        if set(by_id) != expected_ids:
+            self.fail(
+                f"journal rows {sorted(set(by_id) - expected_ids)} were never submitted, "
+                f"submitted jobs {sorted(expected_ids - set(by_id))} have no row"
+            )
+        names = collections.Counter(m.group(1) for r in rows if (m := re.search(r"soak-(\d{3})-", r[1])))
+        twice = sorted(k for k, n in names.items() if n != 1)
+        if twice:
+            self.fail(f"soak jobs recorded more than once: {twice}")
+        for job_id, sub in expected.items():
+            row = by_id.get(job_id)
+            if row is None:
+                continue
+            tag = f"soak-{sub.planned.index:03d}-{sub.planned.kind}-"
+            if tag not in row[1]:
+                self.fail(f"journal row {job_id} is {row[1]}, not {tag}...")
+            if sub.view is not None and row[2] != sub.view["state"]:
+                self.fail(f"journal row {job_id}: state {row[2]}, the API said {sub.view['state']}")
+            if starts.get(job_id, 0) != 1:
+                self.fail(f"journal: job {job_id} ({tag}) started {starts.get(job_id, 0)} times")
+            else:
+                self.result.db_started_once += 1
+        if self.result.probe_id is not None:
+            row = by_id.get(self.result.probe_id)
+            self.result.probe_error = None if row is None else row[3]
+            if row is None or row[2] != "failed" or "SIGTERM" not in (row[3] or ""):
+                self.fail(f"the SIGTERM probe job {self.result.probe_id}: want failed by SIGTERM, got {row}")
+
+    def check_resources(self, *, warmup: int, rss_bound_mib: float) -> None:
+        samples = self.result.samples
+        after = [s for s in samples if s.finished >= warmup]
+        if not after:
+            self.fail(f"fewer than {warmup} jobs finished: no memory figure after warm-up")
+            return
+        # A sample is taken when the soak sees a job finished, often while the next one renders and detects: single
+        # samples swing by tens of MiB. What a job leaves behind raises the floor, so the lowest sample of the
+        # first and of the last window after warm-up are compared.
+        r = self.result
+        r.rss_window = max(1, min(10, len(after) // 4))
+        r.rss_floor_start = min(after[: r.rss_window], key=lambda s: s.rss_mib)
+        r.rss_floor_end = min(after[-r.rss_window :], key=lambda s: s.rss_mib)
+        r.rss_growth_mib = r.rss_floor_end.rss_mib - r.rss_floor_start.rss_mib
+        if r.rss_growth_mib > rss_bound_mib:
+            self.fail(
+                f"the resident memory floor grew {r.rss_growth_mib:.1f} MiB from job {r.rss_floor_start.finished} "
+                f"to job {r.rss_floor_end.finished} (bound {rss_bound_mib:g} MiB)"
+            )
+        idle = [s.threads for s in self.result.idle_samples if s.finished >= warmup] or [
+            s.threads for s in self.result.idle_samples[-1:]
+        ]
+        if len(set(idle)) > 1:
+            self.fail(f"the idle daemon's thread count changed: {idle}")
+
+
+@contextmanager
+def _workdir(path: str | None) -> Iterator[Path]:
+    if path is not None:
+        Path(path).mkdir(parents=True, exist_ok=True)
+        yield Path(path).resolve()
+    else:
+        with tempfile.TemporaryDirectory(prefix="weldcell-soak-") as tmp:
+            yield Path(tmp)
+
+
+def run_daemon_soak(
+    *,
+    config: str | os.PathLike[str],
+    job: str | os.PathLike[str],
+    jobs: int = 100,
+    fault_every: int = 7,
+    weld_every: int = 10,
+    faults: tuple[str, ...] = DEFAULT_FAULTS,
+    warmup: int = 20,
+    rss_bound_mib: float = 20.0,
+    sigterm_mid_weld: bool = True,
+    every: int = 10,
+    stall_s: float = 300.0,
+    workdir: str | None = None,
+    out: TextIO = sys.stdout,
+) -> SoakResult:
+    """Run the daemon soak (see the module docstring) and return what it saw; prints progress to ``out``."""
+    plan = plan_jobs(jobs, fault_every=fault_every, weld_every=weld_every, faults=faults)
+    job_data = tomllib.loads(Path(job).read_text(encoding="utf-8"))
+    t0 = time.monotonic()
+    with _workdir(workdir) as wd:
+        config_path, config_data = soak_config(Path(config), wd)
+        daemon = ServedDaemon(config_path, wd / "daemon.log")
+        try:
+            found = daemon.wait_line(r"listening on (http://\S+)", timeout_s=120)
+            client = Client(found.group(1), config_data.get("daemon", {}).get("token"))
+            soak = DaemonSoak(client, daemon, plan, job_data, every=every, stall_s=stall_s, out=out)
+            soak.t0 = t0
+            print(
+                f"soak: daemon pid {daemon.pid} at {client.base}, {len(plan)} jobs planned: "
+                f"{dict(collections.Counter(p.kind for p in plan))}; work folder {wd}",
+                file=out,
+                flush=True,
+            )
+            try:
+                soak.run()
+                soak.check_api()
+                soak.check_resources(warmup=warmup, rss_bound_mib=rss_bound_mib)
+            except (RuntimeError, OSError) as err:
+                soak.fail(f"the soak stopped: {err}")
+            soak.probe_sigterm(mid_weld=sigterm_mid_weld, timeout_s=stall_s)
+            soak.result.wall_s = time.monotonic() - t0
+            soak.check_journal(wd / "journal.sqlite3")
+            samples = {
+                "jobs": [s.__dict__ for s in soak.result.samples],
+                "idle": [s.__dict__ for s in soak.result.idle_samples],
+            }
+            (wd / "samples.json").write_text(json.dumps(samples, indent=1), encoding="utf-8")
+        finally:
+            daemon.close()
+    return soak.result
+
+
+def print_summary(result: SoakResult, out: TextIO = sys.stdout) -> None:
+    def p(text: str) -> None:
+        print(text, file=out)
+
+    refused = [s for s in result.submissions if s.job_id is None]
+    p(f"\nsoak summary ({result.wall_s:.1f} s wall)")
+    p(
+        f"  submissions {len(result.submissions)}: {len(result.accepted)} accepted, "
+        f"{len(refused)} refused ({', '.join(f'{s.planned.index}: {s.status}' for s in refused) or '-'})"
+    )
+    for kind, counts in sorted(result.outcomes_by_kind().items()):
+        p(f"    {kind:<17} {sum(counts.values()):3d}  {dict(counts)}")
+    p(f"  faults injected {result.injected}, acknowledged {result.acknowledged}")
+    p(
+        f"  records: API {result.api_records}/{len(result.accepted)}; SQLite {result.db_rows} rows "
+        f"({len(result.accepted)} jobs{' + the SIGTERM probe' if result.probe_id is not None else ''}), "
+        f"{result.db_started_once} started exactly once"
+    )
+    s = result.samples
+    if s:
+        top = max(s, key=lambda x: x.rss_mib)
+        p(
+            f"  rss MiB: first {s[0].rss_mib:.1f} (job {s[0].finished}), last {s[-1].rss_mib:.1f} "
+            f"(job {s[-1].finished}), max {top.rss_mib:.1f} (job {top.finished})"
+        )
+        a, b = result.rss_floor_start, result.rss_floor_end
+        if a is not None and b is not None:
+            p(
+                f"  rss floor (lowest of {result.rss_window} samples) after warm-up {a.rss_mib:.1f} "
+                f"(job {a.finished}), at the end {b.rss_mib:.1f} (job {b.finished}): "
+                f"growth {result.rss_growth_mib:+.1f} MiB"
+            )
+        p("  rss when idle (jobs: MiB): " + ", ".join(f"{x.finished}: {x.rss_mib:.1f}" for x in result.idle_samples))
+        step = max(1, len(s) // 20)
+        series = list(s[::step]) + ([s[-1]] if (len(s) - 1) % step else [])
+        p("  rss series (jobs: MiB): " + ", ".join(f"{x.finished}: {x.rss_mib:.1f}" for x in series))
+        p(
+            f"  threads at job ends: min {min(x.threads for x in s)}, max {max(x.threads for x in s)}; when idle: "
+            + ", ".join(f"{x.finished}: {x.threads}" for x in result.idle_samples)
+        )
+    p(f"  SIGTERM: exit code {result.exit_code}, {result.arc_line!r}")
+    if result.probe_id is not None:
+        p(f"    probe job {result.probe_id}: {result.probe_error}")
+    p(f"  failures: {len(result.failures)}")
+    for f in result.failures:
+        p(f"    - {f}")
+
+
+# ================================================================================================ in-process
 def rss_mb() -> float:
     """Resident set size of this process now, MiB (Linux /proc; 0 elsewhere)."""
     try:
@@ -34,23 +825,16 @@ def rss_mb() -> float:
     return 0.0
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default=str(REPO / "examples" / "sim-cell-fanuc.toml"))
-    parser.add_argument("--job", default=str(REPO / "examples" / "jobs" / "ribs.toml"))
-    parser.add_argument("--jobs", type=int, default=100, help="how many jobs (default 100)")
-    parser.add_argument("--weld", action="store_true", help="weld every job instead of dry runs")
-    parser.add_argument("--every", type=int, default=10, help="print a line every N jobs")
-    args = parser.parse_args(argv)
-
+def run_in_process_soak(config_path: str, job_path: str, *, jobs: int, weld: bool, every: int) -> int:
+    """The earlier soak: ``jobs`` dry runs (or welds) through one JobRunner in this process."""
     from cell.config import load_config
     from cell.factory import build_cell
     from cell.job import load_job
     from cell.journal import Journal
     from cell.runner import JobRunner
 
-    config = load_config(args.config)
-    job = load_job(args.job)
+    config = load_config(config_path)
+    job = load_job(job_path)
     outcomes: collections.Counter[str] = collections.Counter()
     failures = 0
     with (
@@ -63,10 +847,10 @@ def main(argv: list[str] | None = None) -> int:
         cell.robot.move_linear(runner.capture_pose(job, 0), speed_m_s=config.robot.speed_m_s)
         t0 = time.monotonic()
         rss0 = 0.0
-        for n in range(1, args.jobs + 1):
-            report = runner.run(job, dry_run=not args.weld)
+        for n in range(1, jobs + 1):
+            report = runner.run(job, dry_run=not weld)
             outcomes[report.outcome] += 1
-            expected = "welded" if args.weld else "dry_run"
+            expected = "welded" if weld else "dry_run"
             if report.outcome != expected:
                 failures += 1
                 print(f"job {n}: {report.outcome}: {report.reason}", flush=True)
@@ -74,7 +858,7 @@ def main(argv: list[str] | None = None) -> int:
                     runner.acknowledge("soak")
             if n == 1:
                 rss0 = rss_mb()
-            if n % args.every == 0 or n == args.jobs:
+            if n % every == 0 or n == jobs:
                 rss = rss_mb()
                 print(
                     f"{n:4d} jobs  {time.monotonic() - t0:7.1f} s  rss {rss:7.1f} MiB "
@@ -82,8 +866,49 @@ def main(argv: list[str] | None = None) -> int:
                     f"  threads {threading.active_count():3d}  {dict(outcomes)}",
                     flush=True,
                 )
-        print(f"journal: {len(journal.recent_jobs(args.jobs + 1))} jobs recorded; failures: {failures}")
+        print(f"journal: {len(journal.recent_jobs(jobs + 1))} jobs recorded; failures: {failures}")
     return 1 if failures else 0
+
+
+# ================================================================================================ main
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", default=str(REPO / "examples" / "sim-cell-fanuc.toml"))
+    parser.add_argument("--job", default=str(REPO / "examples" / "jobs" / "ribs.toml"))
+    parser.add_argument("--jobs", type=int, default=100, help="how many jobs (default 100)")
+    parser.add_argument("--every", type=int, default=10, help="print a line every N finished jobs")
+    parser.add_argument("--fault-every", type=int, default=7, help="every Nth job is a fault (0: none)")
+    parser.add_argument("--weld-every", type=int, default=10, help="every Nth job welds (0: only after faults)")
+    parser.add_argument(
+        "--faults",
+        default=",".join(DEFAULT_FAULTS),
+        help=f"the fault kinds, in turn (default {','.join(DEFAULT_FAULTS)})",
+    )
+    parser.add_argument("--warmup", type=int, default=20, help="jobs before memory growth counts (default 20)")
+    parser.add_argument("--rss-bound-mib", type=float, default=20.0, help="allowed growth after warm-up (MiB)")
+    parser.add_argument("--no-sigterm-probe", action="store_true", help="SIGTERM the idle daemon, not mid-weld")
+    parser.add_argument("--workdir", default=None, help="keep the config copy, journal and daemon log here")
+    parser.add_argument("--in-process", action="store_true", help="the runner alone in this process (no daemon)")
+    parser.add_argument("--weld", action="store_true", help="--in-process: weld every job instead of dry runs")
+    args = parser.parse_args(argv)
+
+    if args.in_process:
+        return run_in_process_soak(args.config, args.job, jobs=args.jobs, weld=args.weld, every=args.every)
+    result = run_daemon_soak(
+        config=args.config,
+        job=args.job,
+        jobs=args.jobs,
+        fault_every=args.fault_every,
+        weld_every=args.weld_every,
+        faults=tuple(f.strip() for f in args.faults.split(",") if f.strip()),
+        warmup=args.warmup,
+        rss_bound_mib=args.rss_bound_mib,
+        sigterm_mid_weld=not args.no_sigterm_probe,
+        every=args.every,
+        workdir=args.workdir,
+    )
+    print_summary(result)
+    return 1 if result.failures else 0
 
 
 if __name__ == "__main__":

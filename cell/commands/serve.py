@@ -1,7 +1,11 @@
 """``weldcell serve --config cell.toml``: the cell's HTTP service (cell.daemon) in the foreground.
 
 SIGTERM or Ctrl-C stops it safely: a running job's motion is stopped and the arc switched off first (the job ends
-in fault with that reason), queued jobs are cancelled, then the devices and the journal are closed.
+in fault with that reason), queued jobs are cancelled, the arc output is read back (the last line says whether it
+reads off; exit code 1 if it still reads on), then the devices and the journal are closed.
+
+``--sim-faults`` (tests and soaks only) serves ``/sim/faults`` to switch faults of the simulators on and off; it is
+refused unless every device of the config is a simulator started by this process (see cell.daemon).
 """
 
 from __future__ import annotations
@@ -29,6 +33,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="connect to simulators already running ('weldcell sim up') instead of starting the config's fakes",
     )
     p.add_argument("--port", type=int, default=None, help="override [daemon] port (0: a free port, printed)")
+    p.add_argument(
+        "--sim-faults",
+        action="store_true",
+        help="test only: serve /sim/faults to inject faults into the simulators this process starts (refused "
+        "unless every device is simulated, and with --no-sims)",
+    )
     p.set_defaults(func=run_serve)
 
 
@@ -54,7 +64,7 @@ def run_serve(args: argparse.Namespace) -> int:
     # ignored while the devices start (a fake UR runs in a child process that would inherit a default handler)
     previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in signals}
     try:
-        daemon = Daemon(config, start_simulators=not args.no_sims)
+        daemon = Daemon(config, start_simulators=not args.no_sims, sim_faults=args.sim_faults)
         for sig in signals:
             signal.signal(sig, on_signal)
         daemon.start()
@@ -66,8 +76,11 @@ def run_serve(args: argparse.Namespace) -> int:
             pass
         print(f"weldcell serve: {received[0] if received else 'stop'} received, stopping safely", flush=True)
         daemon.shutdown(received[0] if received else "stop")
-        print("weldcell serve: stopped", flush=True)
+        arc = daemon.runner.arc_output
+        on = daemon.arc_on_at_exit
+        said = "could not be read back" if on is None else ("STILL READS ON" if on else "reads off")
+        print(f"weldcell serve: stopped; arc output {arc} {said}", flush=True)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    return 0
+    return 1 if on else 0

@@ -28,7 +28,7 @@ import pytest
 from cell.config import CellConfig, config_from_dict, load_config
 from cell.daemon import Daemon
 from cell.errors import ConfigError
-from cell.factory import Simulators, start_simulators
+from cell.factory import Simulators, build_cell, start_simulators
 from cell.journal import Journal
 from tests.cell.test_runner import EXAMPLES, REPO, cell_config, job_text
 
@@ -177,6 +177,78 @@ def test_a_configured_token_is_required_and_a_non_loopback_host_needs_one(tmp_pa
         assert status == 201 and answer["dry_run"] is True
 
 
+@pytest.mark.timeout(30)
+def test_fault_injection_is_off_by_default_and_refused_next_to_real_hardware(
+    daemon: tuple[Daemon, str], tmp_path: Path
+) -> None:
+    _, base = daemon
+    assert request(f"{base}/status")[1]["sim_faults"] is False
+    for method, body in (("GET", None), ("POST", b'{"device": "robot", "fault": "protective_stop"}')):
+        status, answer = request(f"{base}/sim/faults", method=method, body=body)
+        assert status == 404 and "no such resource /sim/faults" in answer["error"]
+    status, _ = request(f"{base}/sim/faults/clear", method="POST", body=b"{}")
+    assert status == 404
+
+    # a real device in the config: refused before the journal is opened or anything connects
+    real = cell_config(tmp_path / "real", "sim-cell-fanuc.toml", robot={"kind": "fanuc", "port": 16001})
+    with pytest.raises(
+        ConfigError, match=r"--sim-faults is for simulated cells only, and robot.kind = 'fanuc' is real"
+    ):
+        Daemon(real, sim_faults=True)
+    assert not (tmp_path / "real" / "journal.sqlite3").exists()
+    # simulators of another process (weldcell sim up): their switches are not ours to throw
+    fake = cell_config(tmp_path / "sims", "sim-cell-fanuc.toml", robot={"port": 16001}, track={"port": 5020})
+    with pytest.raises(ConfigError, match="cannot be combined with --no-sims"):
+        Daemon(fake, start_simulators=False, sim_faults=True)
+    with build_cell(fake) as cell, pytest.raises(ConfigError, match="needs the simulators in this process"):
+        cell.fault_injectors()
+
+
+@pytest.mark.timeout(30)
+def test_the_sim_fault_endpoints_switch_the_faults_of_the_daemons_own_simulators(tmp_path: Path) -> None:
+    config = cell_config(tmp_path, "sim-cell-fanuc.toml", daemon={"port": 0})
+    with Daemon(config, sim_faults=True) as d:
+        host, port = d.address
+        base = f"http://{host}:{port}"
+
+        def post(path: str, obj: Any) -> tuple[int, Any]:
+            return request(f"{base}{path}", method="POST", body=json.dumps(obj).encode())
+
+        assert request(f"{base}/status")[1]["sim_faults"] is True
+        status, view = request(f"{base}/sim/faults")
+        assert status == 200 and sorted(view["devices"]) == ["camera", "robot", "track"]
+        assert "protective_stop" in view["devices"]["robot"]["supported"]
+        camera = {"supported": ["corrupt_frame", "drop_connection", "frame_timeout"], "injected": []}
+        assert view["devices"]["camera"] == camera
+        # mistakes are 400s that say what is allowed
+        status, answer = post("/sim/faults", {"device": "welder", "fault": "no_gas"})
+        assert (
+            status == 400
+            and "no simulated device 'welder'; choose one of ['camera', 'robot', 'track']" in answer["error"]
+        )
+        status, answer = post("/sim/faults", {"device": "camera", "fault": "earthquake"})
+        assert status == 400 and "does not support fault 'earthquake'" in answer["error"]
+        status, answer = post("/sim/faults", {"device": "track", "fault": "track_fault"})
+        assert status == 400 and "needs code=" in answer["error"]
+        status, answer = post("/sim/faults", {"fault": "protective_stop"})
+        assert status == 400 and '"device"' in answer["error"]
+
+        # a protective stop in the fake controller: the driver reads it as it would on a real one
+        status, answer = post("/sim/faults", {"device": "robot", "fault": "protective_stop"})
+        assert status == 200 and answer == {"device": "robot", "fault": "protective_stop", "params": {}}
+        assert d.cell.robot.state().protective_stop
+        injected = request(f"{base}/sim/faults")[1]["devices"]["robot"]["injected"]
+        assert injected == [{"fault": "protective_stop", "params": {}}]
+        status, answer = post("/sim/faults/clear", {})
+        assert status == 200 and answer == {"cleared": ["camera", "robot", "track"]}
+        assert request(f"{base}/sim/faults")[1]["devices"]["robot"]["injected"] == []
+        assert d.cell.robot.state().protective_stop  # latched until an acknowledgement resets it, as on the robot
+        reasons = [e.reason for e in d.journal.events(None)]
+        assert "test fault injected into the simulated robot: protective_stop {}" in reasons
+        assert "test faults cleared in the simulated camera, robot, track" in reasons
+    assert d.arc_on_at_exit is False  # switched off once more and read back at shutdown
+
+
 # ---------------------------------------------------------------------------------------------- subprocess
 class Served:
     """``weldcell serve --no-sims`` as a child process, connected to simulators this test process runs."""
@@ -315,3 +387,10 @@ def test_a_daemon_killed_mid_job_reports_it_interrupted_on_restart_and_does_not_
         restarted.proc.send_signal(signal.SIGTERM)
         restarted.proc.wait(timeout=20)
         restarted.close()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc malloc tuning is Linux-only")
+def test_the_daemon_caps_glibc_malloc_arenas() -> None:
+    from cell.daemon import limit_malloc_arenas
+
+    assert limit_malloc_arenas(2) is True

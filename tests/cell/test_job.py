@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from cell.errors import ConfigError
 from cell.job import detect_params, job_from_text, load_job, weld_params
 from cell.planning import SeamFilter, WeldParams
 from cell.runner import safety_limits
-from perception.transforms import X_from_ur_pose, X_from_xyzwpr_mm_deg
+from perception.transforms import X_from_ur_pose, X_from_xyzwpr_mm_deg, invert_X, transform_points
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples"
@@ -31,11 +32,16 @@ def error_of(text: str, source: str = "job.toml") -> str:
 
 def test_the_ribs_example_loads_and_its_parameters_override_the_cells() -> None:
     job = load_job(EXAMPLES / "jobs" / "ribs.toml")
-    assert (job.workpiece, job.spec.approval, job.spec.frame, len(job.captures)) == ("ribs", False, "fixture", 1)
-    capture = job.captures[0]
-    assert capture.prompts == "camera" and job.prompts_px(0) is None
-    X = capture.X_base_tool()
-    assert np.allclose(X, X_from_ur_pose([-0.29854, -0.36207, 0.36562, -2.43288, -0.95895, -1.10208]))
+    assert (job.workpiece, job.spec.approval, job.spec.frame, len(job.captures)) == ("ribs", False, "fixture", 3)
+    # from the side the fillets face (fixture frame): the -x side, then the -y side from two angles
+    poses = [
+        [-0.4003, -0.27962, 0.36439, -2.59847, -0.64206, -1.21239],
+        [-0.12443, -0.4782, 0.30119, -2.1316, -1.23701, -1.07076],
+        [-0.13153, -0.43999, 0.32551, -2.26852, -1.18112, -1.03028],
+    ]
+    for i, (capture, pose) in enumerate(zip(job.captures, poses, strict=True)):
+        assert capture.prompts == "camera" and job.prompts_px(i) is None and capture.track_position_m == 0.0
+        assert np.allclose(capture.X_base_tool(), X_from_ur_pose(pose))
     config = load_config(EXAMPLES / "sim-cell-fanuc.toml")
     params = weld_params(config.welding, job.spec.welding, job.spec.seams.seam_filter())
     assert params.travel_speed_m_s == 0.025 and params.approach_m == 0.04  # the job's
@@ -44,6 +50,65 @@ def test_the_ribs_example_loads_and_its_parameters_override_the_cells() -> None:
     assert params.travel_angle_rad == pytest.approx(math.radians(10.0)) and params.work_angle_rad == 0.0
     assert (params.arc_do_index, params.weld_job) == (0, 3)
     assert params.seam_filter == SeamFilter(kinds=frozenset({"linear"}), min_length_m=0.02)
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("example", ["sim-cell-fanuc.toml", "sim-cell.toml"])
+def test_the_ribs_job_sees_and_plans_every_fillet_of_the_ribs_scene(example: str) -> None:
+    # what `weldcell run examples/jobs/ribs.toml` does up to the path, without moving: the fake camera renders
+    # frames 0, 1 and 2 from the capture poses; the merged seams must be the scene's 10 fillets, once each
+    from dataclasses import replace
+
+    from cell.factory import build_camera
+    from cell.planning import X_world_base, collect_seams, plan_weld_path
+    from cell.safety import validate
+    from perception.detect import detect
+
+    config = load_config(EXAMPLES / example)
+    job = load_job(EXAMPLES / "jobs" / "ribs.toml")
+    limits = safety_limits(config)
+    assert config.fixture is not None and config.home.pose is not None
+    X_world_fixture = np.asarray(config.fixture.X_world_fixture, dtype=np.float64)
+    pose: dict[str, Any] = {"X_base_tool": np.eye(4), "track_m": 0.0}
+    # the fake camera takes a pose callable where a Robot is typed (sim_fakes.fake_camera.FakeCamera)
+    robot, track = cast(Any, lambda: pose["X_base_tool"]), cast(Any, lambda: pose["track_m"])
+    camera: Any = build_camera(config, robot=robot, track=track)
+    camera.connect()
+    found = []
+    for spec in job.captures:
+        X_base_world = X_world_base(-spec.track_position_m, limits.geometry.axis_base)
+        pose["X_base_tool"] = X_base_world @ X_world_fixture @ spec.X_base_tool()
+        pose["track_m"] = spec.track_position_m
+        frame = replace(camera.capture(), X_base_tool=pose["X_base_tool"], X_tool_camera=config.X_tool_camera())
+        found.append((spec.track_position_m, detect(frame, detect_params(config.detection)).seams))
+    seams = collect_seams(
+        found,
+        axis_base=limits.geometry.axis_base,
+        tol_m=config.detection.merge_tol_m,
+        min_overlap_m=config.detection.merge_min_overlap_m,
+    )
+    params = weld_params(config.welding, job.spec.welding, job.spec.seams.seam_filter())
+    p_world_home = config.home.pose.X_base_tool()[:3, 3]
+    path = plan_weld_path(seams, params, geometry=limits.geometry, p_world_start=p_world_home)
+    validate(path, limits)
+    assert (len(seams), len(path.passes), path.skipped) == (10, 10, ())
+
+    truth = camera.scene.seams  # in the scene's world frame, which is the fixture frame
+    matched = []
+    for seam in seams:
+        p_fixture = transform_points(invert_X(X_world_fixture), seam.points_world)
+        distances, coverage = [], []
+        for t in truth:
+            a, b = t.points[0], t.points[-1]
+            u = (b - a) / np.linalg.norm(b - a)
+            s = np.clip((p_fixture - a) @ u, 0.0, np.linalg.norm(b - a))
+            distances.append(float(np.median(np.linalg.norm(p_fixture - (a + s[:, None] * u), axis=1))))
+            coverage.append(float((s.max() - s.min()) / np.linalg.norm(b - a)))
+        k = int(np.argmin(distances))
+        assert distances[k] < 0.002, (seam.id, truth[k].name, distances[k])
+        assert coverage[k] > 0.85, (seam.id, truth[k].name, coverage[k])  # the ends stop short of the corners
+        matched.append(truth[k].name)
+    assert sorted(matched) == sorted(t.name for t in truth)
 
 
 def test_both_example_cells_run_the_ribs_job_from_their_fixture() -> None:
