@@ -292,6 +292,7 @@ class RMIClient:
         self._pending_commands: dict[str, deque[asyncio.Future[Packet]]] = {}
         self._pending_instructions: dict[int, asyncio.Future[Packet]] = {}
         self._next_sequence_id = 1
+        self._aborts = 0  # FRC_Abort requests so far: a stream that sees this change was aborted
         self._system_fault: SystemFault | None = None
 
     # ----------------------------------------------------------------------------------------- properties
@@ -554,6 +555,7 @@ class RMIClient:
 
     async def abort(self, *, timeout_s: float | None = None, ignore_not_running: bool = True) -> None:
         """Stop ``RMI_MOVE`` now and discard its queued instructions (they fail with MotionAborted)."""
+        self._aborts += 1
         reply = await self.command("FRC_Abort", timeout_s=timeout_s, check=False)
         self._fail_instructions(MotionAborted("motion aborted (FRC_Abort): the remaining instructions were dropped"))
         code = int(reply.get("ErrorID", 0))
@@ -682,9 +684,12 @@ class RMIClient:
         deadline = time.monotonic() + timeout_s
         outstanding: deque[tuple[int, int, asyncio.Future[Packet]]] = deque()  # (index, seq, future)
         next_index = 0
+        aborts = self._aborts
         try:
             while next_index < len(instructions) or outstanding:
                 while next_index < len(instructions) and self.in_flight < self.max_in_flight:
+                    if self._aborts != aborts:  # never send on after an abort
+                        raise MotionAborted("motion aborted (FRC_Abort) while streaming: the rest was not sent")
                     seq, fut = await self.submit(instructions[next_index], timeout_s=self._remaining(deadline))
                     outstanding.append((next_index, seq, fut))
                     next_index += 1
@@ -702,6 +707,9 @@ class RMIClient:
                     if not fut.done():
                         continue
                     reply = fut.result()  # raises SystemFault / ConnectionLost / MotionAborted
+                    if self._aborts != aborts and int(reply.get("ErrorID", 0)) == ErrorID.NOT_RUNNING:
+                        # an instruction that crossed the abort on the wire: the abort's doing, not a refusal
+                        raise MotionAborted(f"motion aborted (FRC_Abort): instruction {seq} arrived after it")
                     _check_reply(f"instruction {seq} (path index {index})", reply)
                 while outstanding and outstanding[0][2].done():
                     index, _, _ = outstanding.popleft()
