@@ -190,6 +190,36 @@ def test_client_window_never_lets_a_ninth_out(fake: FakeFanucController) -> None
     assert fake.max_in_flight() == 8
 
 
+@pytest.mark.timeout(30)
+def test_an_abort_mid_stream_ends_it_with_motion_aborted_and_nothing_is_sent_after(fake: FakeFanucController) -> None:
+    # the abort frees the in-flight window: the stream must not send into it. (The rarer case, an instruction
+    # already on the wire when the abort lands and answered RMIT-009 NOT_RUNNING, is not reproducible with
+    # the fake's timing; the client maps it to MotionAborted too.)
+    sent_before_abort: list[int] = []
+
+    async def scenario() -> None:
+        client = await initialized_client(fake)
+        aborting: list[asyncio.Task[None]] = []
+
+        def on_complete(i: int) -> None:
+            if i == 2 and not aborting:
+                sent_before_abort.append(len(fake.records()))
+                aborting.append(asyncio.ensure_future(client.abort()))
+
+        try:
+            moves = [LinearMotion(start_plus(dy_mm=2.0 * (i + 1)), speed_mm_s=100) for i in range(40)]
+            with pytest.raises(MotionAborted):
+                await client.run_instructions(moves, timeout_s=20.0, on_complete=on_complete)
+            await aborting[0]
+        finally:
+            await client.disconnect()
+
+    run(scenario())
+    records = fake.records()
+    assert sent_before_abort and len(records) <= sent_before_abort[0] + 1 < 40
+    assert not any(r.error_id for r in records), [r for r in records if r.error_id]
+
+
 @pytest.mark.timeout(20)
 def test_sequence_gap_gets_rmit_029_and_holds_until_reset(fake: FakeFanucController) -> None:
     async def scenario() -> None:
