@@ -25,7 +25,6 @@ from scipy.spatial import cKDTree
 
 from perception.capture import Capture, PointCloud
 from perception.cloud import (
-    Neighbourhoods,
     RegionParams,
     grow_regions,
     kdtree,
@@ -47,6 +46,7 @@ from perception.seamfit import (
     classify_junction_local,
     fit_edge_path,
     fit_plane,
+    indices_near_polyline,
     refine_curve,
     refine_linear,
     region_edges,
@@ -225,7 +225,7 @@ def _regions_to_seams(
             else:
                 # each side is named by the masks of its voxels near the seam (a region can be larger
                 # than the surface: without the crop a plate's top may grow into the table around it)
-                near = _voxels_near(nbh, c.line, sp.patch_radius_m)
+                near = indices_near_polyline(nbh.tree, len(grid.centroids), c.line, sp.patch_radius_m)
                 la = _majority(grid.labels[near], regions[near], c.regions_a)
                 # geometry decides: when one mask bled over the fold (a face seen at a grazing angle
                 # merged into the plate), the other side is named by its own best other label
@@ -496,14 +496,6 @@ def _covers(a: FloatArray, b: FloatArray, *, tol_m: float = 0.004) -> bool:
     if np.linalg.norm(rel - np.outer(t, d), axis=1).max() > tol_m:
         return False
     return bool(t.max() > 0 and t.min() < la)
-
-
-def _voxels_near(nbh: Neighbourhoods, line: FloatArray, radius: float) -> NDArray[np.int64]:
-    """Indices of the voxel centroids within about ``radius`` of a polyline."""
-    from perception.evaluate import resample_polyline
-
-    hits = nbh.tree.query_ball_point(resample_polyline(line, radius), 1.42 * radius, return_sorted=False)
-    return np.unique(np.concatenate([np.asarray(h, dtype=np.int64) for h in hits]))
 
 
 def _majority(

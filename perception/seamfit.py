@@ -263,15 +263,20 @@ class FullRes:
 
 def _indices_near_polyline(full: FullRes, line: FloatArray, radius: float) -> NDArray[np.int64]:
     """Indices of full-res points within about ``radius`` of a polyline (query balls along it)."""
+    return indices_near_polyline(full.tree, len(full.points), line, radius)
+
+
+def indices_near_polyline(tree: cKDTree, n_points: int, line: FloatArray, radius: float) -> NDArray[np.int64]:
+    """Indices (sorted) of the ``n_points`` points in ``tree`` within about ``radius`` of a polyline."""
     from perception.evaluate import resample_polyline
 
     # balls every 2R of radius sqrt(2)R cover the cylinder of radius R around each segment
     samples = resample_polyline(line, 2 * radius)
     # small queries: scipy's worker threads would cost more than they save
-    hits = full.tree.query_ball_point(samples, 1.42 * radius, return_sorted=False)
+    hits = tree.query_ball_point(samples, 1.42 * radius, return_sorted=False)
     if not len(hits):
         return np.zeros(0, np.int64)
-    seen = np.zeros(len(full.points), dtype=bool)  # the balls overlap: mark, then list (no sort)
+    seen = np.zeros(n_points, dtype=bool)  # the balls overlap: mark, then list (no sort)
     for h in hits:
         seen[h] = True
     return np.flatnonzero(seen)
