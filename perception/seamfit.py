@@ -300,18 +300,25 @@ def classify_junction(
     """'fillet' | 'butt' | 'convex' | 'none' for two local surface patches; their normals; fit RMS."""
     ca, na, rms_a = fit_plane(pa)
     cb, nb, rms_b = fit_plane(pb)
-    na = orient_towards(na, ca, viewpoint)
-    nb = orient_towards(nb, cb, viewpoint)
-    angle = float(np.degrees(np.arccos(np.clip(abs(na @ nb), -1.0, 1.0))))
-    rms = max(rms_a, rms_b)
-    if angle >= params.min_fold_deg:
-        # concave when each patch lies on the outer (torch) side of the other's plane
-        if na @ (cb - ca) > params.concave_margin_m and nb @ (ca - cb) > params.concave_margin_m:
-            return "fillet", na, nb, rms
-        return "convex", na, nb, rms
-    if angle <= params.max_coplanar_deg and abs(na @ (cb - ca)) < 0.002:
-        return "butt", na, nb, rms
-    return "none", na, nb, rms
+    kinds, na_o, nb_o = _junction_kinds(ca[None], na[None], cb[None], nb[None], params, viewpoint)
+    return JOINT_KINDS[int(kinds[0])], na_o[0], nb_o[0], max(rms_a, rms_b)
+
+
+def _junction_kinds(
+    ca: FloatArray, na: FloatArray, cb: FloatArray, nb: FloatArray, params: SeamParams, viewpoint: FloatArray
+) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+    """The junction rules for K plane pairs (centroids and normals, (K, 3) each): the index of each pair's
+    kind in JOINT_KINDS, and both normals turned towards ``viewpoint``. Two surfaces folded by at least
+    ``min_fold_deg`` form a fillet when each lies on the outer (torch) side of the other's plane, else a
+    convex edge; nearly parallel ones in one plane may be a butt joint."""
+    na = np.where(((viewpoint - ca) * na).sum(axis=1, keepdims=True) >= 0, na, -na)
+    nb = np.where(((viewpoint - cb) * nb).sum(axis=1, keepdims=True) >= 0, nb, -nb)
+    angle = np.degrees(np.arccos(np.clip(np.abs((na * nb).sum(axis=1)), -1.0, 1.0)))
+    m = params.concave_margin_m
+    concave = ((na * (cb - ca)).sum(axis=1) > m) & ((nb * (ca - cb)).sum(axis=1) > m)
+    folded = angle >= params.min_fold_deg
+    flush = (angle <= params.max_coplanar_deg) & (np.abs((na * (cb - ca)).sum(axis=1)) < 0.002)
+    return np.where(folded, np.where(concave, 0, 1), np.where(flush, 2, 3)), na, nb
 
 
 def classify_junction_local(
@@ -341,19 +348,11 @@ def classify_junction_local(
         return "none", np.zeros(3), np.zeros(3), 0.0
     ca, na, rms_a = plane_patches(tree_a.data, list(hits_a[use]), anchors[use])
     cb, nb, rms_b = plane_patches(tree_b.data, list(hits_b[use]), anchors[use])
-    # the rules of classify_junction, for every anchor at once
-    na = np.where(((viewpoint - ca) * na).sum(axis=1, keepdims=True) >= 0, na, -na)
-    nb = np.where(((viewpoint - cb) * nb).sum(axis=1, keepdims=True) >= 0, nb, -nb)
-    angle = np.degrees(np.arccos(np.clip(np.abs((na * nb).sum(axis=1)), -1.0, 1.0)))
-    m = params.concave_margin_m
-    concave = ((na * (cb - ca)).sum(axis=1) > m) & ((nb * (ca - cb)).sum(axis=1) > m)
-    folded = angle >= params.min_fold_deg
-    flush = (angle <= params.max_coplanar_deg) & (np.abs((na * (cb - ca)).sum(axis=1)) < 0.002)
-    kinds = np.where(folded, np.where(concave, 0, 1), np.where(flush, 2, 3))  # JOINT_KINDS
+    kinds, na, nb = _junction_kinds(ca, na, cb, nb, params, viewpoint)
     # majority vote; a tie goes to the kind seen first along the junction
-    counts = np.bincount(kinds, minlength=4)
+    counts = np.bincount(kinds, minlength=len(JOINT_KINDS))
     tied = np.flatnonzero(counts == counts.max())
-    code = int(tied[np.argmin([np.argmax(kinds == k) for k in tied])]) if len(tied) > 1 else int(tied[0])
+    code = int(min(tied, key=lambda k: int(np.argmax(kinds == k))))
     joint = JOINT_KINDS[code]
     win = kinds == code
     n_a, n_b = na[win].mean(axis=0), nb[win].mean(axis=0)
