@@ -12,9 +12,8 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
-import threading
-from types import FrameType
+
+from cell.commands.stop_signals import StopSignals
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -53,34 +52,19 @@ def run_serve(args: argparse.Namespace) -> int:
     safety_limits(config)  # refuse a config without [safety] before starting anything
     if args.port is not None:
         config = config.model_copy(update={"daemon": config.daemon.model_copy(update={"port": args.port})})
-    stop = threading.Event()
-    received: list[str] = []
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        received.append(signal.Signals(signum).name)
-        stop.set()
-
-    signals = (signal.SIGINT, signal.SIGTERM)
-    # ignored while the devices start (a fake UR runs in a child process that would inherit a default handler)
-    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in signals}
-    try:
+    with StopSignals() as signals:  # ignored while the devices start (the fake UR runs in a child process)
         daemon = Daemon(config, start_simulators=not args.no_sims, sim_faults=args.sim_faults)
-        for sig in signals:
-            signal.signal(sig, on_signal)
+        signals.arm()
         daemon.start()
         host, port = daemon.address
         print(f"weldcell serve: listening on http://{host}:{port} (journal {daemon.journal.path})", flush=True)
         for record in daemon.interrupted:
             print(f"weldcell serve: job {record.id} ({record.job_file}) was interrupted: not resumed", flush=True)
-        while not stop.wait(0.25):
-            pass
-        print(f"weldcell serve: {received[0] if received else 'stop'} received, stopping safely", flush=True)
-        daemon.shutdown(received[0] if received else "stop")
+        received = signals.wait()
+        print(f"weldcell serve: {received} received, stopping safely", flush=True)
+        daemon.shutdown(received)
         arc = daemon.runner.arc_output
         on = daemon.arc_on_at_exit
         said = "could not be read back" if on is None else ("STILL READS ON" if on else "reads off")
         print(f"weldcell serve: stopped; arc output {arc} {said}", flush=True)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     return 1 if on else 0

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
-import threading
-from types import FrameType
+
+from cell.commands.stop_signals import StopSignals
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -37,30 +36,13 @@ def run_up(args: argparse.Namespace) -> int:
         print(f"weldcell sim up: {args.config} has no simulated device (kind = fake-* / fake)", file=sys.stderr)
         return 2
 
-    stop = threading.Event()
-    received: list[str] = []
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        received.append(signal.Signals(signum).name)
-        stop.set()
-
-    signals = (signal.SIGINT, signal.SIGTERM)
-    # Ignored while the simulators start: a fake that runs in its own process (the UR) inherits an *ignored*
-    # signal across exec, so a Ctrl-C sent to the whole process group reaches only this process, which then
-    # stops every fake in order instead of each child dying with its own traceback.
-    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in signals}
-    try:
+    with StopSignals() as signals:  # ignored while the simulators start (see StopSignals)
         with start_simulators(config) as sims:
-            for sig in signals:
-                signal.signal(sig, on_signal)
+            signals.arm()
             for line in sims.devices():
                 print(line.format(), flush=True)
             print(f"weldcell sim up: {config.source} running; Ctrl-C or SIGTERM stops it", flush=True)
-            while not stop.wait(0.25):
-                pass
-            print(f"weldcell sim up: {received[0] if received else 'stop'} received, stopping", flush=True)
+            received = signals.wait()
+            print(f"weldcell sim up: {received} received, stopping", flush=True)
         print("weldcell sim up: stopped", flush=True)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     return 0
