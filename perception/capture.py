@@ -36,6 +36,7 @@ CAMERA_FILE = "camera.json"
 POSE_FILE = "pose.json"
 PROMPTS_FILE = "prompts.json"
 GROUND_TRUTH_FILE = "ground_truth.json"
+JOINT_TYPES = ("fillet", "inside_corner", "lap", "v_groove", "butt")
 
 # Depth beyond this is not a weld cell; it is a unit error (millimetres read as metres, say).
 MAX_PLAUSIBLE_DEPTH_M = 20.0
@@ -100,8 +101,11 @@ class GroundTruthSeam:
 
     kind: Literal["linear", "curved"]
     points_camera: FloatArray
+    joint: str | None = None  # fillet, inside_corner, lap, v_groove, butt (optional in the file)
 
     def __post_init__(self) -> None:
+        if self.joint is not None and self.joint not in JOINT_TYPES:
+            raise BadCapture(f"ground-truth joint must be one of {', '.join(JOINT_TYPES)}, got {self.joint!r}")
         pts = np.asarray(self.points_camera, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 2:
             raise BadCapture(f"a ground-truth seam needs (N>=2, 3) points, got shape {pts.shape}")
@@ -404,7 +408,13 @@ def read_ground_truth(path: Path) -> tuple[GroundTruthSeam, ...]:
         if not isinstance(s, dict):
             raise BadCapture(f"seam {i} is not an object", path=path)
         try:
-            seams.append(GroundTruthSeam(kind=s.get("kind"), points_camera=np.asarray(s.get("points"), float)))  # type: ignore[arg-type]
+            seams.append(
+                GroundTruthSeam(
+                    kind=s.get("kind"),  # type: ignore[arg-type]
+                    points_camera=np.asarray(s.get("points"), float),
+                    joint=s.get("joint"),
+                )
+            )
         except (TypeError, ValueError, BadCapture) as err:
             raise BadCapture(f"seam {i}: {err}", path=path) from err
     return tuple(seams)
@@ -565,7 +575,13 @@ def save_capture(
     if gt is not None:
         write_json(
             root / GROUND_TRUTH_FILE,
-            {"frame": "camera", "seams": [{"kind": s.kind, "points": s.points_camera.tolist()} for s in gt]},
+            {
+                "frame": "camera",
+                "seams": [
+                    {"kind": s.kind, "points": s.points_camera.tolist(), **({"joint": s.joint} if s.joint else {})}
+                    for s in gt
+                ],
+            },
         )
     return root
 

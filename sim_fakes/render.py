@@ -89,12 +89,17 @@ def _cylinder_mesh(part: Part) -> tuple[FloatArray, NDArray[np.int32], NDArray[n
 
 def part_mesh(part: Part) -> tuple[FloatArray, NDArray[np.int32], NDArray[np.int32]]:
     """(V, 3) world vertices, (T, 3) triangles, (T,) face id per triangle."""
+    if part.hull_world is not None:
+        h = part.hull_world
+        return h.vertices, h.triangles, h.triangle_face
     return _box_mesh(part) if part.shape == "box" else _cylinder_mesh(part)
 
 
 def face_normal_at(part: Part, face: int, p_world: FloatArray) -> FloatArray:
     """(N, 3) exact outward normals of ``face`` at (N, 3) points on it."""
     p = np.asarray(p_world, dtype=np.float64).reshape(-1, 3)
+    if part.hull_world is not None:
+        return np.tile(part.hull_world.faces[face].normal, (len(p), 1))
     if part.shape == "cylinder" and face == CYL_SIDE:
         X_part_world = invert_X(part.X_world_part)
         q = transform_points(X_part_world, p)
@@ -119,6 +124,8 @@ class GroundTruthDetail:
     normal_a_camera: FloatArray  # (N, 3) outward normals of the two faces at the points
     normal_b_camera: FloatArray
     faces: tuple[tuple[int, int], tuple[int, int]]
+    joint: str = "fillet"
+    seam_index: int = -1  # into the scene's seams
 
 
 @dataclass(frozen=True)
@@ -205,6 +212,9 @@ def _exact_depth(
             n[m] = face_normal_at(part, int(f), approx[m])
         if part.shape == "cylinder":
             t_exact = _refine_cylinder(part, o, d, t0, faces)
+        elif part.hull_world is not None:
+            offs = np.array([f.offset for f in part.hull_world.faces])[faces]
+            t_exact = -(np.einsum("ij,ij->i", o, n) + offs) / np.einsum("ij,ij->i", d, n)
         else:
             # plane through the face: n . (p - p_face) = 0, with p_face from the part centre
             c = part.X_world_part[:3, 3]
@@ -252,7 +262,38 @@ def _noisy_depth(depth: FloatArray, cos_inc: FloatArray, noise: NoiseModel, rng:
         p_drop = (inc_deg > STRUCTURED_DROPOUT_DEG).astype(float) + 0.0005
         p_fly = 0.2
     z = z + rng.standard_normal(z.shape) * np.where(valid, sigma, 0.0)
-    # flying pixels: a mix of foreground and background depth at depth discontinuities
+    z = _flying_pixels(depth, z, p_fly, rng)
+    drop = valid & (rng.random(z.shape) < p_drop)
+    z[drop] = np.nan
+    return z
+
+
+@dataclass(frozen=True)
+class StereoSensor:
+    """An active stereo camera (OAK-D-like), modelled in the disparity domain.
+
+    Disparity d = fx * baseline / z gets white noise ``sigma_px`` (grown as 1/sqrt(cos incidence) on
+    slanted surfaces), a spatially correlated part ``sigma_corr_px`` (smooth over ``corr_px`` pixels),
+    and is quantised to 1/``subpixel`` px before turning back into depth. Pixels the second camera (at
+    +baseline along the camera's x axis) cannot see get no depth (stereo shadows); dropouts rise from
+    ``grazing_deg`` to ``grazing_deg`` + 15 degrees incidence; depth edges get flying pixels; steel seen
+    near the mirror direction of the projector gets specular holes.
+    """
+
+    baseline_m: float = 0.075
+    sigma_px: float = 0.08
+    sigma_corr_px: float = 0.04
+    corr_px: float = 12.0
+    subpixel: int = 8
+    grazing_deg: float = 70.0
+    p_fly: float = 0.5
+    specular_exponent: float = 300.0
+    p_speckle: float = 0.002
+
+
+def _flying_pixels(depth: FloatArray, z: FloatArray, p_fly: float, rng: np.random.Generator) -> FloatArray:
+    """A mix of foreground and background depth where the true depth jumps by more than 1 cm."""
+    valid = np.isfinite(depth)
     zf = np.where(valid, depth, np.inf)
     pad = np.pad(zf, 1, mode="edge")
     neigh = np.stack([pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]])
@@ -262,9 +303,56 @@ def _noisy_depth(depth: FloatArray, cos_inc: FloatArray, noise: NoiseModel, rng:
     edge = valid & (zmax - depth > 0.01)
     fly = edge & (rng.random(z.shape) < p_fly)
     mix = rng.uniform(0.1, 0.9, z.shape)
-    z = np.where(fly, depth + mix * (zmax - depth), z)
-    drop = valid & (rng.random(z.shape) < p_drop)
-    z[drop] = np.nan
+    return np.where(fly, depth + mix * (zmax - depth), z)
+
+
+def _smooth_field(shape: tuple[int, int], scale_px: float, rng: np.random.Generator) -> FloatArray:
+    """(H, W) zero-mean, unit-variance random field correlated over about ``scale_px`` pixels."""
+    import cv2
+
+    H, W = shape
+    h, w = max(2, int(np.ceil(H / scale_px)) + 1), max(2, int(np.ceil(W / scale_px)) + 1)
+    coarse = rng.standard_normal((h, w)).astype(np.float32)
+    field = cv2.resize(coarse, (W, H), interpolation=cv2.INTER_CUBIC).astype(np.float64)
+    return (field - field.mean()) / max(float(field.std()), 1e-12)
+
+
+def _stereo_depth(
+    depth: FloatArray,
+    cos_inc: FloatArray,
+    sensor: StereoSensor,
+    rng: np.random.Generator,
+    *,
+    fx: float,
+    caster: _Raycaster,
+    X_world_camera: FloatArray,
+    dirs_world: FloatArray,
+    steel: NDArray[np.bool_],
+) -> FloatArray:
+    valid = np.isfinite(depth)
+    fb = fx * sensor.baseline_m
+    zt = np.where(valid, depth, 1.0)
+    g = 1.0 / np.sqrt(np.maximum(cos_inc, 0.25))
+    disp = fb / zt
+    disp = disp + sensor.sigma_px * g * rng.standard_normal(depth.shape)
+    disp = disp + sensor.sigma_corr_px * _smooth_field(depth.shape, sensor.corr_px, rng)
+    disp = np.round(disp * sensor.subpixel) / sensor.subpixel
+    z = np.where(valid & (disp > 0), fb / np.maximum(disp, 1e-9), np.nan)
+    # stereo shadow: the second camera's ray to the surface point is blocked
+    eye2 = X_world_camera[:3, 3] + sensor.baseline_m * X_world_camera[:3, 0]
+    flat = np.flatnonzero(valid.ravel())
+    p = X_world_camera[:3, 3] + depth.ravel()[flat, None] * dirs_world[flat]
+    vec = p - eye2
+    dist = np.linalg.norm(vec, axis=1)
+    t_hit = caster.cast(np.broadcast_to(eye2, vec.shape).copy(), vec / dist[:, None])["t_hit"]
+    shadow = np.zeros(depth.size, bool)
+    shadow[flat] = t_hit < dist - np.maximum(0.001, 0.002 * dist)
+    z = np.where(shadow.reshape(depth.shape), np.nan, z)
+    z = _flying_pixels(depth, z, sensor.p_fly, rng)
+    inc_deg = np.degrees(np.arccos(np.clip(cos_inc, 0.0, 1.0)))
+    p_drop = np.clip((inc_deg - sensor.grazing_deg) / 15.0, 0.0, 1.0) + sensor.p_speckle
+    glare = steel & (cos_inc**sensor.specular_exponent * (1.0 + 0.5 * _smooth_field(depth.shape, 6.0, rng)) > 0.6)
+    z[valid & ((rng.random(z.shape) < p_drop) | glare)] = np.nan
     return z
 
 
@@ -312,21 +400,34 @@ def _color(
     return (img * 255.0 + 0.5).astype(np.uint8)
 
 
+@dataclass(frozen=True)
+class GroundTruthRules:
+    """When a seam sample counts as seen: its centre and points ``face_offset_m`` into both faces (at most
+    half of each face's reach) are unoccluded and inside the image, both faces are seen at less than
+    ``max_incidence_deg``, and the visible run is at least ``min_run_m`` long."""
+
+    max_incidence_deg: float = MAX_INCIDENCE_DEG
+    min_run_m: float = GT_MIN_RUN_M
+    face_offset_m: float = GT_FACE_OFFSET_M
+
+
 def _visible_runs(
-    scene: Scene, caster: _Raycaster, X_world_camera: FloatArray, seam_index: int
+    scene: Scene, caster: _Raycaster, X_world_camera: FloatArray, seam_index: int, rules: GroundTruthRules
 ) -> list[tuple[FloatArray, FloatArray, FloatArray]]:
     """Sampled points of a seam that the camera sees, split into runs, with both face normals."""
     seam = scene.seams[seam_index]
     cam = scene.camera
     pts, da, db = seam.sample(GT_STEP_M)
     (pa, fa), (pb, fb) = seam.faces
-    na = face_normal_at(scene.parts[pa], fa, pts + da * (seam.gap_m / 2))
-    nb = face_normal_at(scene.parts[pb], fb, pts + db * (seam.gap_m / 2))
+    edge_a, edge_b = seam.edge_offsets(da, db)
+    na = face_normal_at(scene.parts[pa], fa, pts + edge_a)
+    nb = face_normal_at(scene.parts[pb], fb, pts + edge_b)
     eye = X_world_camera[:3, 3]
     X_camera_world = invert_X(X_world_camera)
     ok = np.ones(len(pts), bool)
-    offset = seam.gap_m / 2 + GT_FACE_OFFSET_M
-    for probe in (pts, pts + offset * da, pts + offset * db):
+    off_a = min(rules.face_offset_m, seam.reach_a_m / 2)
+    off_b = min(rules.face_offset_m, seam.reach_b_m / 2)
+    for probe in (pts, pts + edge_a + off_a * da, pts + edge_b + off_b * db):
         p_cam = transform_points(X_camera_world, probe)
         in_front = p_cam[:, 2] > 0.05
         uv = np.column_stack([cam.fx * p_cam[:, 0] / p_cam[:, 2] + cam.cx, cam.fy * p_cam[:, 1] / p_cam[:, 2] + cam.cy])
@@ -339,7 +440,7 @@ def _visible_runs(
         unoccluded = ans["t_hit"] >= dist - 5e-4
         ok &= in_front & inside & unoccluded
     view = (pts - eye) / np.linalg.norm(pts - eye, axis=1, keepdims=True)
-    cos_max = np.cos(np.radians(MAX_INCIDENCE_DEG))
+    cos_max = np.cos(np.radians(rules.max_incidence_deg))
     ok &= (-(na * view).sum(axis=1) > cos_max) & (-(nb * view).sum(axis=1) > cos_max)
     closed = seam.kind == "curved" and np.linalg.norm(seam.points[0] - seam.points[-1]) < 1e-9
     runs: list[tuple[int, int]] = []
@@ -357,42 +458,26 @@ def _visible_runs(
         idx_runs = [np.concatenate([idx_runs[-1][:-1], idx_runs[0]]), *idx_runs[1:-1]]
     out = []
     for ir in idx_runs:
-        if len(ir) < 2 or (len(ir) - 1) * GT_STEP_M < GT_MIN_RUN_M:
+        if len(ir) < 2 or (len(ir) - 1) * GT_STEP_M < rules.min_run_m - 1e-9:
             continue
         out.append((pts[ir], na[ir], nb[ir]))
     return out
 
 
-def render(
+def visible_ground_truth(
     scene: Scene,
+    X_world_camera: FloatArray,
     *,
-    noise: NoiseModel = "stereo",
-    seed: int = 0,
-    with_pose: bool = False,
-    X_world_camera: FloatArray | None = None,
-) -> RenderResult:
-    """Render ``scene`` from its camera (or ``X_world_camera``) with the given noise model.
-
-    Deterministic for a given seed. The returned capture carries prompts and ground truth.
-    """
-    if noise not in NOISE_MODELS:
-        raise ValueError(f"unknown noise model {noise!r}; choose one of {NOISE_MODELS}")
-    rng = np.random.default_rng(seed)
-    cam = scene.camera
-    X_wc = scene.camera.X_world_camera if X_world_camera is None else np.asarray(X_world_camera, float)
-    caster = _Raycaster(scene)
-    depth, part_idx, face_idx, normals_w = _exact_depth(scene, caster, X_wc)
-    _, dirs = _rays(scene, X_wc)
-    dnorm = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-    cos_inc = np.abs((np.nan_to_num(normals_w.reshape(-1, 3)) * dnorm).sum(axis=1)).reshape(depth.shape)
-    z = _noisy_depth(depth, cos_inc, noise, rng)
-    color = _color(scene, depth, part_idx, normals_w, dirs, X_wc[:3, 3], rng, noise)
-
-    # ground truth, clipped to what the camera sees
+    rules: GroundTruthRules | None = None,
+    caster: _Raycaster | None = None,
+) -> tuple[GroundTruthDetail, ...]:
+    """The scene's seams clipped to what a camera at ``X_world_camera`` sees (``rules``), as visible runs."""
+    caster = caster or _Raycaster(scene)
+    X_wc = np.asarray(X_world_camera, dtype=np.float64)
     X_cw = invert_X(X_wc)
     gts: list[GroundTruthDetail] = []
     for si, seam in enumerate(scene.seams):
-        runs = _visible_runs(scene, caster, X_wc, si)
+        runs = _visible_runs(scene, caster, X_wc, si, rules or GroundTruthRules())
         for k, (pts, na, nb) in enumerate(runs):
             if seam.kind == "linear":
                 keep = np.array([0, len(pts) - 1])
@@ -408,8 +493,50 @@ def render(
                     normal_a_camera=na[keep] @ X_cw[:3, :3].T,
                     normal_b_camera=nb[keep] @ X_cw[:3, :3].T,
                     faces=seam.faces,
+                    joint=seam.joint,
+                    seam_index=si,
                 )
             )
+
+    return tuple(gts)
+
+
+def render(
+    scene: Scene,
+    *,
+    noise: NoiseModel = "stereo",
+    seed: int = 0,
+    with_pose: bool = False,
+    X_world_camera: FloatArray | None = None,
+    rules: GroundTruthRules | None = None,
+    sensor: StereoSensor | None = None,
+) -> RenderResult:
+    """Render ``scene`` from its camera (or ``X_world_camera``) with the given noise model.
+
+    Deterministic for a given seed. The returned capture carries prompts and ground truth.
+    """
+    if noise not in NOISE_MODELS:
+        raise ValueError(f"unknown noise model {noise!r}; choose one of {NOISE_MODELS}")
+    rng = np.random.default_rng(seed)
+    cam = scene.camera
+    X_wc = scene.camera.X_world_camera if X_world_camera is None else np.asarray(X_world_camera, float)
+    caster = _Raycaster(scene)
+    depth, part_idx, face_idx, normals_w = _exact_depth(scene, caster, X_wc)
+    _, dirs = _rays(scene, X_wc)
+    dnorm = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    cos_inc = np.abs((np.nan_to_num(normals_w.reshape(-1, 3)) * dnorm).sum(axis=1)).reshape(depth.shape)
+    if sensor is None:
+        z = _noisy_depth(depth, cos_inc, noise, rng)
+    else:
+        steel = np.isin(part_idx, [k for k, p in enumerate(scene.parts) if p.workpiece])
+        z = _stereo_depth(
+            depth, cos_inc, sensor, rng, fx=cam.fx, caster=caster, X_world_camera=X_wc, dirs_world=dirs, steel=steel
+        )
+    color = _color(scene, depth, part_idx, normals_w, dirs, X_wc[:3, 3], rng, noise)
+
+    # ground truth, clipped to what the camera sees
+    X_cw = invert_X(X_wc)
+    gts = list(visible_ground_truth(scene, X_wc, rules=rules, caster=caster))
 
     # surfaces and prompts: one pixel deep inside each visible workpiece face
     import cv2
@@ -448,7 +575,7 @@ def render(
         X_base_tool=X_base_tool,
         X_tool_camera=X_tool_camera,
         prompts_px=np.array(prompts, dtype=np.float64).reshape(-1, 2),
-        ground_truth=tuple(GroundTruthSeam(g.kind, g.points_camera) for g in gts),
+        ground_truth=tuple(GroundTruthSeam(g.kind, g.points_camera, g.joint) for g in gts),
         source=f"sim:{scene.name}:{noise}:{seed}",
     )
     normals_cam = (normals_w.reshape(-1, 3) @ X_cw[:3, :3].T).reshape(normals_w.shape)

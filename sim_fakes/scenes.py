@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.transforms import look_at_X, make_X
+from sim_fakes.hull import Hull, convex_hull
 
 FloatArray = NDArray[np.float64]
 
@@ -31,18 +32,32 @@ CYLINDER_SEGMENTS = 1024  # polygon error r(1 - cos(pi/n)) < 0.2 um for r = 40 m
 @dataclass(frozen=True)
 class Part:
     """A rigid solid. ``size`` is (sx, sy, sz) for a box centred on its frame origin, or
-    (radius, radius, height) for a cylinder whose axis is the part z axis from z=0 to z=height."""
+    (radius, radius, height) for a cylinder whose axis is the part z axis from z=0 to z=height.
+    A ``hull`` is the convex hull of ``corners_part`` ((V, 3), part frame); its face ids index
+    :attr:`hull_world`'s faces, and ``size`` is unused."""
 
     name: str
-    shape: Literal["box", "cylinder"]
+    shape: Literal["box", "cylinder", "hull"]
     size: tuple[float, float, float]
     X_world_part: FloatArray
     albedo_rgb: tuple[float, float, float]
     workpiece: bool = True
+    corners_part: FloatArray | None = None
+    hull_world: Hull | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.shape == "hull":
+            if self.corners_part is None:
+                raise ValueError(f"part {self.name!r}: a hull needs corners_part")
+            c = np.asarray(self.corners_part, dtype=np.float64).reshape(-1, 3)
+            c_world = c @ self.X_world_part[:3, :3].T + self.X_world_part[:3, 3]
+            object.__setattr__(self, "hull_world", convex_hull(c_world))
 
     def face_normal_world(self, face: int) -> FloatArray:
         """Outward unit normal of a planar face in the world frame."""
         R = self.X_world_part[:3, :3]
+        if self.hull_world is not None:
+            return np.asarray(self.hull_world.faces[face].normal)
         if self.shape == "box":
             axis, sign = divmod(face, 2)
             n = np.zeros(3)
@@ -61,6 +76,11 @@ class SeamDef:
     faces: ((part_index, face_id), (part_index, face_id)) of the two surfaces that meet.
     into_a, into_b: (N, 3) unit directions lying in face a / face b, pointing away from the seam.
     gap_m: width of the gap for butt joints (0 for fillets).
+    joint: fillet, inside_corner, lap, v_groove or butt (the capture format's names).
+    reach_a_m, reach_b_m: how far face a / face b extend from the seam along ``into_a`` / ``into_b``
+        (a 3 mm lap edge face reaches 3 mm); the visibility probe stays within half of it.
+    across_a, across_b: (3,) unit directions from the seam's centre line to face a's / face b's edge across
+        the gap (default: ``into_a`` / ``into_b``; a V-groove's bevels rise at an angle to the gap).
     """
 
     name: str
@@ -70,6 +90,17 @@ class SeamDef:
     into_a: FloatArray
     into_b: FloatArray
     gap_m: float = 0.0
+    joint: str = "fillet"
+    reach_a_m: float = float("inf")
+    reach_b_m: float = float("inf")
+    across_a: FloatArray | None = None
+    across_b: FloatArray | None = None
+
+    def edge_offsets(self, into_a: FloatArray, into_b: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(N, 3) offsets from seam points to the edges of face a and face b (zero without a gap)."""
+        da = into_a if self.across_a is None else np.broadcast_to(self.across_a, into_a.shape)
+        db = into_b if self.across_b is None else np.broadcast_to(self.across_b, into_b.shape)
+        return da * (self.gap_m / 2), db * (self.gap_m / 2)
 
     def sample(self, step_m: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Resample points and in-face directions every ``step_m`` along the seam."""
@@ -239,7 +270,7 @@ def lap_joint() -> Scene:
     lower = _plate("lower", 0.26, 0.18, 0.008, 0.0, -0.03, 0.0)
     upper = _plate("upper", 0.26, 0.14, 0.008, 0.0, 0.06, _top(lower), STEEL_WARM)
     parts = (_table(), lower, upper)
-    seam = _fillet_y_face(1, lower, 2, upper, -1)
+    seam = replace(_fillet_y_face(1, lower, 2, upper, -1), joint="lap")
     cam = CameraSetup(eye=(0.05, -0.40, 0.34), target=(0.0, 0.0, 0.0))
     return Scene("lap_joint", "lap joint: an upper plate overlapping a lower one", parts, (seam,), cam)
 
@@ -262,6 +293,7 @@ def inside_corner() -> Scene:
     s3 = _linear(
         "wall_x-wall_y", np.array([xw, yw, z]), np.array([xw, yw, z + 0.16]), ((2, 0), (3, 2)), [0, -1, 0], [-1, 0, 0]
     )
+    s3 = replace(s3, joint="inside_corner")
     cam = CameraSetup(eye=(-0.30, -0.30, 0.40), target=(0.02, 0.02, 0.04))
     return Scene(
         "inside_corner",
@@ -298,6 +330,7 @@ def open_box() -> Scene:
             "front-right", np.array([xr, yf, z]), np.array([xr, yf, z + H]), ((3, 3), (5, 0)), [-1, 0, 0], [0, 1, 0]
         ),
     )
+    seams = tuple(replace(s, joint="inside_corner") if not s.name.startswith("floor") else s for s in seams)
     cam = CameraSetup(eye=(-0.20, -0.30, 0.40), target=(0.02, 0.03, 0.02))
     return Scene("open_box", "open box: floor and four walls, inside fillets and corners", parts, seams, cam)
 
@@ -327,6 +360,7 @@ def butt_joint() -> Scene:
     seam = _linear(
         "butt", np.array([0.0, -0.11, t]), np.array([0.0, 0.11, t]), ((1, 5), (2, 5)), [-1, 0, 0], [1, 0, 0], gap_m=gap
     )
+    seam = replace(seam, joint="butt")
     cam = CameraSetup(eye=(-0.20, -0.30, 0.40), target=(0.0, 0.0, 0.0))
     return Scene("butt_joint", "butt joint: two plates side by side with a 1.5 mm gap", parts, (seam,), cam)
 

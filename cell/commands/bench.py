@@ -11,7 +11,11 @@ import importlib
 
 # Benchmark subcommand modules, imported when the parser is built; each keeps heavy imports inside
 # its handler so that `weldcell --help` stays fast.
-BENCH_MODULES: tuple[str, ...] = ("cell.commands.bench_seams", "cell.commands.bench_calibration")
+BENCH_MODULES: tuple[str, ...] = (
+    "cell.commands.bench_seams",
+    "cell.commands.bench_calibration",
+    "cell.commands.bench_zoo",
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -15,7 +15,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "prompts.json, ground_truth.json (and pose.json with --with-pose).",
     )
     p.add_argument("scene", nargs="?", help="scene name (see --list)")
-    p.add_argument("--list", action="store_true", help="list the scenes and exit")
+    p.add_argument("--list", action="store_true", help="list the scenes and the zoo's families and exit")
+    p.add_argument(
+        "--random",
+        metavar="FAMILY|all",
+        help="draw a random weldment of a zoo family instead of a fixed scene (all: one of each family, "
+        "written to OUT/FAMILY-SEED); its sensor, view and prompts are drawn too",
+    )
+    p.add_argument(
+        "--split",
+        choices=("dev", "test"),
+        default="dev",
+        help="with --random: the split the seed counts in (dev seeds start at 0, test seeds at 1,000,000)",
+    )
     p.add_argument("--out", help="output capture folder")
     p.add_argument("--noise", choices=("stereo", "structured", "none"), default="stereo")
     p.add_argument("--seed", type=int, default=0)
@@ -38,10 +50,15 @@ def run(args: argparse.Namespace) -> int:
     from sim_fakes.scenes import SCENES, get_scene, with_resolution
 
     if args.list:
+        from sim_fakes.zoo import FAMILIES
+
         for name, factory in SCENES.items():
             scene = factory()
             print(f"{name:15s} {len(scene.seams):2d} seam(s)  {scene.description}")
+        print(f"zoo families (--random): {', '.join(FAMILIES)}")
         return 0
+    if args.random:
+        return _random(args)
     if not args.scene or not args.out:
         print("weldcell simulate: give a SCENE and --out DIR (or --list)")
         return 2
@@ -74,4 +91,38 @@ def run(args: argparse.Namespace) -> int:
     for g in result.ground_truth:
         length = float(((g.points_world[1:] - g.points_world[:-1]) ** 2).sum(axis=1).__pow__(0.5).sum())
         print(f"    {g.name:16s} {g.kind:7s} {length * 1000:7.1f} mm")
+    return 0
+
+
+def _random(args: argparse.Namespace) -> int:
+    from perception.capture import save_capture
+    from sim_fakes.zoo import FAMILIES, SPLIT_BASE, draw_capture
+
+    if not args.out:
+        print("weldcell simulate: give --out DIR with --random")
+        return 2
+    families = list(FAMILIES) if args.random == "all" else [args.random]
+    if families[0] not in FAMILIES:
+        print(f"weldcell simulate: unknown zoo family {args.random!r}; choose one of: {', '.join(FAMILIES)}, all")
+        return 2
+    if args.seed < 0 or args.seed >= SPLIT_BASE["test"]:
+        print(f"weldcell simulate: --seed counts within the split, 0 to {SPLIT_BASE['test'] - 1}")
+        return 2
+    seed = SPLIT_BASE[args.split] + args.seed
+    from pathlib import Path
+
+    for family in families:
+        t0 = time.perf_counter()
+        z = draw_capture(family, seed)
+        out = Path(args.out) if len(families) == 1 else Path(args.out) / f"{family}-{seed}"
+        folder = save_capture(z.result.capture, out, depth_format="png")
+        prompts = z.result.capture.prompts_px
+        print(
+            f"{family} seed {seed} ({args.split}): {z.sensor}, camera at {z.camera_distance_m:.2f} m, "
+            f"{'no prompts' if prompts is None else f'{len(prompts)} prompts'}, {z.clutter} clutter box(es), "
+            f"rendered in {time.perf_counter() - t0:.2f} s -> {folder}"
+        )
+        for g in z.result.ground_truth:
+            length = float(((g.points_world[1:] - g.points_world[:-1]) ** 2).sum(axis=1).__pow__(0.5).sum())
+            print(f"    {g.name:24s} {g.joint:13s} {g.kind:7s} {length * 1000:7.1f} mm")
     return 0

@@ -1,0 +1,76 @@
+"""The zoo benchmark: a few captures per family each end in seams or a clear NoSeamFound (never an error),
+the scorer counts exactly, and the CLI prints the documented JSON. Accuracy figures belong to the bench."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cell.zoo_bench import CaptureScore, ensure_capture, score_capture
+from perception.capture import JOINT_TYPES, load_capture
+from sim_fakes.zoo import FAMILIES
+
+KEYS = {"captures", "passed", "gt_seams", "found", "false_seams", "reported", "rmse_mm", "max_mm", "time_s_median"}
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("zoo-cache")
+
+
+@pytest.mark.parametrize("family", sorted(FAMILIES))
+def test_a_zoo_capture_ends_in_seams_or_a_clear_no_seam_found(family: str, cache: Path) -> None:
+    folder = ensure_capture(cache, family, 0)
+    cap = load_capture(folder)  # the cache is an ordinary capture folder
+    assert cap.ground_truth and all(g.joint in JOINT_TYPES for g in cap.ground_truth)
+    score, _ = score_capture(folder)
+    assert score.outcome in ("seams", "no_seam"), score.reason
+    if score.outcome == "no_seam":
+        assert score.reason and score.found == 0 and score.reported == 0
+    assert 0 <= score.found <= score.gt_seams == len(cap.ground_truth)
+    assert score.false_seams <= score.reported
+    assert len(score.point_error_mm) == len(score.point_range_m) == len(score.point_incidence_rad)
+    # a second call reads the cache: the same capture, bit for bit
+    again = load_capture(ensure_capture(cache, family, 0))
+    np.testing.assert_array_equal(again.depth_m, cap.depth_m)
+
+
+def test_the_pass_rule_is_every_seam_no_false_rmse_and_max() -> None:
+    base = dict(family="tee", seed=0, sensor="oakd", prompted=True, clutter=0, camera_distance_m=0.5, gt_seams=2,
+                reported=2, split_seams=0, p95_mm=0.2, time_s=0.1, outcome="seams")  # fmt: skip
+    assert CaptureScore(**base, found=2, false_seams=0, rmse_mm=0.29, max_mm=0.99).passed
+    assert not CaptureScore(**base, found=1, false_seams=0, rmse_mm=0.1, max_mm=0.2).passed
+    assert not CaptureScore(**base, found=2, false_seams=1, rmse_mm=0.1, max_mm=0.2).passed
+    assert not CaptureScore(**base, found=2, false_seams=0, rmse_mm=0.31, max_mm=0.5).passed
+    assert not CaptureScore(**base, found=2, false_seams=0, rmse_mm=0.2, max_mm=1.01).passed
+
+
+def test_bench_zoo_prints_the_documented_json(cache: Path, tmp_path: Path) -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "cell.cli", "bench", "zoo", "--split", "dev", "--n", "2", "--families", "butt,pipe",
+         "--cache", str(cache), "--json", "--out", str(tmp_path / "out")],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout)
+    assert doc["split"] == "dev" and doc["captures"] == 2
+    assert set(doc["families"]) == {"butt", "pipe"}
+    for fam in doc["families"].values():
+        assert set(fam) >= KEYS and fam["captures"] == 1
+    assert set(doc["overall"]) >= KEYS
+    assert doc["overall"]["gt_seams"] == sum(f["gt_seams"] for f in doc["families"].values())
+    bench = json.loads((tmp_path / "out" / "bench.json").read_text())
+    assert len(bench["per_capture"]) == 2
+    assert (tmp_path / "out" / "errors.png").stat().st_size > 0
+    assert len(list((tmp_path / "out" / "gallery").glob("*.png"))) == 2
+
+
+def test_bench_zoo_refuses_an_unknown_family() -> None:
+    out = subprocess.run([sys.executable, "-m", "cell.cli", "bench", "zoo", "--families", "teapot"],
+                         capture_output=True, text=True, timeout=60, check=False)  # fmt: skip
+    assert out.returncode == 2 and "teapot" in out.stdout
