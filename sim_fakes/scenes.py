@@ -330,9 +330,9 @@ def open_box() -> Scene:
             "front-right", np.array([xr, yf, z]), np.array([xr, yf, z + H]), ((3, 3), (5, 0)), [-1, 0, 0], [0, 1, 0]
         ),
     )
-    seams = tuple(replace(s, joint="inside_corner") if not s.name.startswith("floor") else s for s in seams)
+    tagged = tuple(replace(s, joint="inside_corner") if not s.name.startswith("floor") else s for s in seams)
     cam = CameraSetup(eye=(-0.20, -0.30, 0.40), target=(0.02, 0.03, 0.02))
-    return Scene("open_box", "open box: floor and four walls, inside fillets and corners", parts, seams, cam)
+    return Scene("open_box", "open box: floor and four walls, inside fillets and corners", parts, tagged, cam)
 
 
 def pipe_on_plate() -> Scene:
