@@ -15,6 +15,7 @@ BENCH_MODULES: tuple[str, ...] = (
     "cell.commands.bench_seams",
     "cell.commands.bench_calibration",
     "cell.commands.bench_zoo",
+    "cell.commands.bench_real",
 )
 
 

@@ -3,7 +3,6 @@ NoSeamFound is an answer, a traceback is not). Skipped when the folder is absent
 
 from __future__ import annotations
 
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -19,11 +18,10 @@ pytestmark = [
     pytest.mark.realdata,
     pytest.mark.skipif(not REALDATA.is_dir(), reason="../shared/realdata is not present"),
 ]
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 
 
 def test_structured_light_frame_converts_with_its_documented_numbers() -> None:
-    from realdata import xiaoyu_capture
+    from cell.real_bench import xiaoyu_capture
 
     cap = xiaoyu_capture(REALDATA)
     # SOURCES.md: 2048 x 1536, fx = fy = 1991.94, cx 713.5, cy 761.3, median depth 676 mm, 85% valid
