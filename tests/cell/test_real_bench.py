@@ -33,7 +33,7 @@ def test_a_reference_seam_is_covered_where_detected_points_lie_within_its_tolera
 def test_a_seam_far_from_every_reference_is_false_and_fails_the_item() -> None:
     item = RealItem("x", "cloud", seams=[{"kind": "linear", "length_m": 0.1}, {"kind": "linear", "length_m": 0.1}])
     on = np.column_stack([np.linspace(0.0, 0.1, 101), np.zeros(101), np.zeros(101)])
-    off = on + [0.0, 0.0, 0.0201]  # median 20.1 mm > twice the 10 mm tolerance
+    off = on + np.array([0.0, 0.0, 0.0201])  # median 20.1 mm > twice the 10 mm tolerance
     _score(item, [on, off], ref())
     assert item.coverage == [1.0] and item.false_seams == 1 and item.passed is False
     assert item.seams[1]["median_to_reference_m"] == pytest.approx(0.0201, abs=1e-4)
@@ -48,8 +48,9 @@ def test_bench_real_lists_every_item_and_none_ends_in_an_error(tmp_path: Path) -
     items = discover(REALDATA)
     kinds = {k for _, k in items}
     assert {"cloud", "rgbd frame", "photos", "mesh"} <= kinds
-    out = subprocess.run([sys.executable, "-m", "cell.cli", "bench", "real", "--realdata", str(REALDATA), "--json",
-                          "--out", str(tmp_path)], capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
+    cmd = [sys.executable, "-m", "cell.cli", "bench", "real", "--realdata", str(REALDATA), "--json"]
+    cmd += ["--out", str(tmp_path)]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
     assert [i["item"] for i in doc["items"]] == [rel for rel, _ in items]
