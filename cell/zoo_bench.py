@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-ZOO_VERSION = 1  # bump when the generator or renderer changes what a (family, seed) draws
+ZOO_VERSION = 2  # bump when the generator or renderer changes what a (family, seed) draws
 COVER_FOUND = 0.5
 PASS_RMSE_MM = 0.3
 PASS_MAX_MM = 1.0
@@ -139,7 +139,7 @@ def ensure_capture(cache: Path, family: str, seed: int) -> Path:
 # Detect and score one capture
 
 
-def score_capture(folder: Path, *, keep_result: bool = False) -> tuple[CaptureScore, Any]:
+def score_capture(folder: Path, *, keep_result: bool = False, method: str | None = None) -> tuple[CaptureScore, Any]:
     """Detect the cached capture in ``folder`` and score it against its truth."""
     from perception.capture import load_capture
     from perception.detect import DetectParams, detect
@@ -154,7 +154,7 @@ def score_capture(folder: Path, *, keep_result: bool = False) -> tuple[CaptureSc
                 clutter=meta["clutter"], camera_distance_m=meta["camera_distance_m"], gt_seams=len(gt))  # fmt: skip
     t0 = time.perf_counter()
     try:
-        result = detect(cap, DetectParams())
+        result = detect(cap, DetectParams() if method is None else DetectParams(method=method))  # type: ignore[arg-type]
     except NoSeamFound as err:
         dt = time.perf_counter() - t0
         nan = float("nan")
@@ -211,10 +211,10 @@ def score_capture(folder: Path, *, keep_result: bool = False) -> tuple[CaptureSc
     return score, (result if keep_result else None)
 
 
-def _work(args: tuple[str, str, int]) -> CaptureScore:
-    cache, family, seed = args
+def _work(args: tuple[str, str, int, str | None]) -> CaptureScore:
+    cache, family, seed, method = args
     folder = ensure_capture(Path(cache), family, seed)
-    return score_capture(folder)[0]
+    return score_capture(folder, method=method)[0]
 
 
 def _init_worker() -> None:
@@ -285,6 +285,7 @@ def run_zoo(
     families: list[str] | None = None,
     jobs: int = 1,
     cache: Path | None = None,
+    method: str | None = None,
     progress: Callable[[int, int, CaptureScore], None] | None = None,
 ) -> ZooReport:
     from sim_fakes.zoo import split_plan
@@ -294,7 +295,7 @@ def run_zoo(
     cache_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     scores: list[CaptureScore] = []
-    tasks = [(str(cache_dir), f, s) for f, s in plan]
+    tasks = [(str(cache_dir), f, s, method) for f, s in plan]
     if jobs <= 1:
         for k, t in enumerate(tasks):
             scores.append(_work(t))
@@ -313,14 +314,14 @@ def run_zoo(
     return ZooReport(split, scores, time.perf_counter() - t0)
 
 
-def write_outputs(report: ZooReport, out: Path, cache: Path | None = None) -> list[Path]:
+def write_outputs(report: ZooReport, out: Path, cache: Path | None = None, method: str | None = None) -> list[Path]:
     """bench.json, errors.png (error against range, noise and incidence) and a gallery of the worst 12."""
     out.mkdir(parents=True, exist_ok=True)
     written = [out / "bench.json"]
     full = report.to_json(captures=True)
     (out / "bench.json").write_text(json.dumps(full, indent=1))
     written.append(_plot_errors(report, out / "errors.png"))
-    written += _gallery(report, out / "gallery", cache or default_cache_dir())
+    written += _gallery(report, out / "gallery", cache or default_cache_dir(), method)
     return written
 
 
@@ -371,7 +372,7 @@ def _badness(s: CaptureScore) -> tuple[float, ...]:
             -(s.max_mm if np.isfinite(s.max_mm) else 1e9))  # fmt: skip
 
 
-def _gallery(report: ZooReport, folder: Path, cache: Path) -> list[Path]:
+def _gallery(report: ZooReport, folder: Path, cache: Path, method: str | None = None) -> list[Path]:
     """Overlays (detected seams red with torch axes, truth green) of the 12 worst captures."""
     import cv2
 
@@ -384,7 +385,7 @@ def _gallery(report: ZooReport, folder: Path, cache: Path) -> list[Path]:
     worst = sorted(report.scores, key=_badness)[:12]
     for rank, s in enumerate(worst):
         src = capture_dir(cache, s.family, s.seed)
-        score, result = score_capture(src, keep_result=True)
+        score, result = score_capture(src, keep_result=True, method=method)
         cap = load_capture(src)
         img = draw_overlay(cap, result or DetectionResult("camera", ()), truth=True)
         text = (f"{s.name} {s.sensor}: {s.found}/{s.gt_seams} found, {s.false_seams} false, "

@@ -72,7 +72,7 @@ class DetectParams:
     veil_jump_m: float = 0.003
     knn: int = 16
     normal_radius_voxels: float = 2.5
-    method: Literal["refined", "paper"] = "refined"
+    method: Literal["surfaces", "refined", "paper"] = "refined"
     regions: RegionParams = field(default_factory=RegionParams)
     seams: SeamParams = field(default_factory=SeamParams)
     torch: TorchParams = field(default_factory=TorchParams)
@@ -734,6 +734,8 @@ def detect(
 ) -> DetectionResult:
     """Detect every seam in ``capture``. Raises NoSeamFound (with the step that emptied it)."""
     p = params or DetectParams()
+    if p.method == "surfaces":
+        return detect_surfaces(capture, p, segmenter=segmenter)
     seg = segmenter or GraphSegmenter(p.segmenter)
     log = StepLog()
     t0 = time.perf_counter()
@@ -867,3 +869,98 @@ def _guess_viewpoint(points: FloatArray, normals: FloatArray | None = None) -> F
     if up[2] < 0:
         up = -up  # robot/world frames: z up, the sensor looks down
     return np.asarray(c + up * extent)
+
+
+# --------------------------------------------------------------------------------------------------
+# The fine stage rebuilt on fitted surfaces (perception/fine/): the steps, in order
+
+
+def detect_surfaces(
+    capture: Capture, params: DetectParams | None = None, *, segmenter: Segmenter | None = None
+) -> DetectionResult:
+    """Surfaces first: fitted planes and cylinders, their adjacency, and the joints between them.
+
+    Coarse stage as the paper's (prompts, segmenter, seam ROI: kept for the masks and the overlay);
+    fine stage: noise -> surfaces -> support -> adjacency -> folds + gaps -> full-resolution refinement.
+    """
+    from perception.fine.adjacency import adjacent_pairs
+    from perception.fine.folds import fold_seams
+    from perception.fine.gaps import gap_seams
+    from perception.fine.noise import estimate_noise, local_planes
+    from perception.fine.refine import refine_seams
+    from perception.fine.support import find_support
+    from perception.fine.surfaces import segment_surfaces
+    from perception.fine.types import NoiseModel
+    from perception.fine.visibility import clip_to_view
+
+    p = params or DetectParams()
+    log = StepLog()
+    t0 = time.perf_counter()
+    with log.step("backproject"):
+        organized = capture.points_camera()
+    valid = np.isfinite(organized[..., 2])
+    log.counts["raw"] = int(valid.sum())
+    factor = max(1, round(valid.shape[1] / 640))
+    with log.step("work_image"):
+        work = np.ascontiguousarray(organized[::factor, ::factor]).astype(np.float64)
+        if p.workspace_min_m is not None and p.workspace_max_m is not None:
+            inside = np.all((work >= np.asarray(p.workspace_min_m)) & (work <= np.asarray(p.workspace_max_m)), axis=-1)
+            work[~inside] = np.nan
+        zr = work[..., 2]
+        with np.errstate(invalid="ignore"):
+            work[(zr < p.z_range_m[0]) | (zr > p.z_range_m[1])] = np.nan
+    log.counts["work"] = int(np.isfinite(work[..., 2]).sum())
+    with log.step("noise"):
+        planes = local_planes(work, window_px=7)
+        noise = estimate_noise(work, planes)
+    with log.step("surfaces"):
+        surf = segment_surfaces(work, planes, noise, factor=factor)
+    log.counts["surfaces"] = len(surf.surfaces)
+    with log.step("support"):
+        support = find_support(work, surf, noise)
+    with log.step("adjacency"):
+        pairs = adjacent_pairs(surf, noise)
+    log.counts["pairs"] = len(pairs)
+    with log.step("folds"):
+        curves = fold_seams(work, surf, pairs, noise, support=support)
+    with log.step("gaps"):
+        curves += gap_seams(work, surf, pairs, noise, support=support)
+    log.counts["candidates"] = len(curves)
+    t_coarse = time.perf_counter() - t0
+    with log.step("refine"):
+        noise_full = NoiseModel(noise.sigma_1m_m, noise.floor_m, noise.pixel_angle_rad / factor)
+        curves, used = refine_seams(curves, organized, capture.intrinsics, surf, noise_full)
+    log.counts["cropped"] = used
+    with log.step("view"):
+        curves = clip_to_view(curves)
+    t_fine = time.perf_counter() - t0 - t_coarse
+    if not curves:
+        raise NoSeamFound(
+            f"{len(surf.surfaces)} surface(s) fitted and {len(pairs)} adjacent pair(s) examined; none meets another "
+            "in a concave fold or across a narrow gap"
+        )
+    geoms = [
+        SeamGeometry(c.kind, c.joint, c.points, c.normals_a, c.normals_b, c.surfaces, c.surfaces, c.support, c.rms_m)
+        for c in curves
+    ]
+    t2 = time.perf_counter()
+    seams = _to_seams(geoms, p, capture.X_base_camera)
+    total = time.perf_counter() - t0
+    timing = {"coarse": t_coarse, "fine": t_fine, "path": time.perf_counter() - t2, "total": total}
+    timing.update({f"step_{k}": v for k, v in log.timing_s.items()})
+    info: dict[str, Any] = {
+        "method": "surfaces",
+        "noise_sigma_1m_m": round(noise.sigma_1m_m, 7),
+        "work_factor": factor,
+        "support": sorted(support),
+        "removed_share": round(1.0 - used / max(log.counts["raw"], 1), 4),
+        "counts": dict(log.counts),
+    }
+    return DetectionResult(
+        frame="base" if capture.X_base_camera is not None else "camera",
+        seams=tuple(seams),
+        point_counts={"raw": log.counts["raw"], "cropped": used, "downsampled": log.counts["work"]},
+        timing_s=timing,
+        info=info,
+        artifacts={"surfaces": surf},
+    )

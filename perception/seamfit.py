@@ -54,7 +54,7 @@ class SeamGeometry:
     """
 
     kind: Literal["linear", "curved"]
-    joint: Literal["fillet", "butt"]
+    joint: Literal["fillet", "inside_corner", "lap", "v_groove", "butt"]
     points: FloatArray
     normals_a: FloatArray
     normals_b: FloatArray

@@ -15,6 +15,7 @@ them state those seams themselves.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -141,7 +142,49 @@ def fold_seams(parts: Sequence[Part], *, joint_rule: JointRule | None = None) ->
                                     reach_b_m=reach_a,
                                 )
                             )
-    return dedupe_seams(out)
+    return join_flush_seams(parts, dedupe_seams(out))
+
+
+def join_flush_seams(parts: Sequence[Part], seams: list[SeamDef]) -> list[SeamDef]:
+    """Linear folds along one face a that continue each other, onto faces b that are one plane (a wall's outer
+    face flush with the end faces of the walls it stands between), are one seam: a welder runs it through."""
+    def plane_of(face: tuple[int, int]) -> tuple[FloatArray, float] | None:
+        part = parts[face[0]]
+        for fid, _f, n, d in planar_faces(part):
+            if fid == face[1]:
+                return n, d
+        return None
+
+    out = list(seams)
+    changed = True
+    while changed:
+        changed = False
+        for i in range(len(out)):
+            for j in range(i + 1, len(out)):
+                s, t = out[i], out[j]
+                if s.kind != "linear" or t.kind != "linear" or s.faces[0] != t.faces[0] or s.joint != t.joint:
+                    continue
+                ps, pt = plane_of(s.faces[1]), plane_of(t.faces[1])
+                if ps is None or pt is None or float(ps[0] @ pt[0]) < 1 - 1e-9 or abs(ps[1] - pt[1]) > 1e-9:
+                    continue
+                ends = [(a, b) for a in (0, 1) for b in (0, 1) if np.linalg.norm(s.points[a] - t.points[b]) < 1e-7]
+                if not ends:
+                    continue
+                a, b = ends[0]
+                d = s.points[1 - a] - s.points[a]
+                e = t.points[1 - b] - t.points[b]
+                if np.linalg.norm(np.cross(d, e)) > 1e-9 * np.linalg.norm(d) * np.linalg.norm(e) or d @ e > 0:
+                    continue
+                longer = s if np.linalg.norm(d) >= np.linalg.norm(e) else t
+                pts = np.array([s.points[1 - a], t.points[1 - b]])
+                out[i] = replace(longer, points=pts, into_a=longer.into_a[:1].repeat(2, axis=0),
+                                 into_b=longer.into_b[:1].repeat(2, axis=0))  # fmt: skip
+                del out[j]
+                changed = True
+                break
+            if changed:
+                break
+    return out
 
 
 def _cylinder_rings(parts: Sequence[Part], ic: int, work: list[int], rule: JointRule) -> list[SeamDef]:

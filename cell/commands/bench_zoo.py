@@ -22,6 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--jobs", type=int, default=1, help="worker processes")
     p.add_argument("--cache", help="folder for rendered captures (default ~/.cache/weldcell/zoo)")
     p.add_argument("--out", help="write bench.json, errors.png and a gallery of the worst 12 captures here")
+    p.add_argument("--method", choices=("surfaces", "refined", "paper"), help="detector method (default: the default)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run)
 
@@ -71,10 +72,11 @@ def run(args: argparse.Namespace) -> int:
         def tick(k: int, n: int, s: object) -> None:
             bar.update(task, completed=k, last=getattr(s, "name", ""))
 
-        report = run_zoo(args.split, args.n, families=families, jobs=args.jobs, cache=cache, progress=tick)
+        report = run_zoo(args.split, args.n, families=families, jobs=args.jobs, cache=cache, method=args.method,
+                         progress=tick)  # fmt: skip
     summary = report.to_json()
     if args.out:
-        written = write_outputs(report, Path(args.out), cache)
+        written = write_outputs(report, Path(args.out), cache, args.method)
         console.print(f"wrote {written[0]}, {written[1]} and {len(written) - 2} gallery images")
     if args.json:
         print(json.dumps(summary, indent=1))

@@ -147,3 +147,16 @@ def test_a_pipe_on_a_plate_gives_one_exact_ring_clipped_to_the_plate() -> None:
     # the arc spans the part of the circle with x <= 0.1 (angle beyond acos(1/3) either side of +x)
     ang = np.arctan2(arc.points[:, 1], arc.points[:, 0] - 0.09)
     assert np.abs(ang).min() == pytest.approx(np.arccos(1 / 3), abs=0.02)
+
+
+def test_a_fillet_along_flush_faces_of_several_parts_is_one_seam() -> None:
+    # a box's left wall stands between the front and back walls; outside, its face is flush with their ends
+    floor = hull_part("floor", box_corners(0.4, 0.4, 0.01))
+    front = hull_part("front", box_corners(0.2, 0.008, 0.08), y=-0.096, z=0.01)
+    back = hull_part("back", box_corners(0.2, 0.008, 0.08), y=0.096, z=0.01)
+    left = hull_part("left", box_corners(0.008, 0.184, 0.08), x=-0.096, z=0.01)
+    seams = fold_seams([floor, front, back, left])
+    # the outside fillet on the left runs the whole 200 mm (back end, left face, front end), not 184 mm
+    assert has_line(seams, [-0.1, -0.1, 0.01], [-0.1, 0.1, 0.01])
+    assert not any(np.linalg.norm(s.points[1] - s.points[0]) == pytest.approx(0.184) for s in seams
+                   if abs(s.points[0][0] + 0.1) < 1e-9)  # fmt: skip

@@ -1,0 +1,17 @@
+"""The fine stage, surfaces first: one step per module, each a pure function on small frozen value types.
+
+    organized cloud (work resolution)
+      -> noise.estimate_noise        local plane residuals: sigma(z) and the sample spacing of this capture
+      -> surfaces.segment_surfaces   planes and cylinders with their support (thresholds from the noise)
+      -> support.find_support        the table (or fixture plane) the workpiece stands on
+      -> adjacency.adjacent_pairs    surfaces that come near each other (across blurred or unsampled corners)
+      -> folds.fold_seams            concave folds: plane x plane lines, plane x cylinder rings, clipped to
+                                     where both surfaces have support; open roots (V-groove gaps)
+      -> gaps.gap_seams              butt gaps: coplanar surfaces whose facing boundaries run parallel
+      -> refine.refine_seams         both surfaces refitted on full-resolution points near the seam
+      -> visibility.clip_to_view     kept where both faces are seen at under 75 degrees, in runs >= 20 mm
+
+Lengths in metres, angles in radians inside; the thresholds are multiples of the measured noise and of
+the sample spacing, so that one set of constants holds from 0.3 to 0.9 m and from structured light to a
+noisy stereo camera.
+"""

@@ -1,0 +1,187 @@
+"""Concave folds between two fitted surfaces: the seam is their intersection, clipped to where both have support.
+
+For two planes the intersection is a line; for a plane and a cylinder standing on it, a ring (an ellipse
+where the axis is tilted). The curve is kept only where both surfaces have points within reach of it, bin by
+bin along it, so that a rib's fillet ends where the rib does and a hole or an occluder splits it. A fold is
+a seam only when it is concave: each surface's points near the fold lie on the camera side of the other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from perception.fine.runs import covered_runs
+from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
+
+
+@dataclass(frozen=True)
+class FoldParams:
+    min_turn_rad: float = np.radians(20.0)  # two planes closer to parallel than this do not fold
+    bin_m: float = 0.002
+    max_hole_m: float = 0.008
+    min_length_m: float = 0.012
+    near_m: float = 0.004  # support within this of the curve (plus noise and spacing) counts
+    concave_sigma: float = 2.0
+    lap_height_m: float = 0.014  # a standing face this narrow across the seam is a lap edge
+
+
+def _line_of(a: Surface, b: Surface, near: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Point (nearest ``near``) and unit direction of the intersection of two planes."""
+    u = np.cross(a.normal, b.normal)
+    u /= np.linalg.norm(u)
+    A = np.vstack([a.normal, b.normal, u])
+    rhs = np.array([-a.offset, -b.offset, float(u @ near)])
+    return np.linalg.solve(A, rhs), u
+
+
+def joint_type(na: FloatArray, nb: FloatArray, up: FloatArray, standing_height_m: float, lap_height_m: float) -> Joint:
+    """Name a fold by how its faces stand relative to ``up`` (the support's normal)."""
+    ca, cb = abs(float(na @ up)), abs(float(nb @ up))
+    if ca < 0.5 and cb < 0.5:
+        return "inside_corner"
+    if 0.3 < ca < 0.97 and 0.3 < cb < 0.97:
+        return "v_groove"
+    if min(ca, cb) < 0.5 < max(ca, cb) and standing_height_m <= lap_height_m:
+        return "lap"
+    return "fillet"
+
+
+def fold_seams(
+    points: NDArray[np.floating],
+    surfaces: SurfaceSet,
+    pairs: tuple[Pair, ...],
+    noise: NoiseModel,
+    *,
+    support: frozenset[int],
+    params: FoldParams | None = None,
+) -> list[SeamCurve]:
+    """Every concave fold between adjacent surfaces (neither the support), clipped to both supports."""
+    fp = params or FoldParams()
+    p = np.asarray(points, dtype=np.float64)
+    lab = surfaces.labels
+    up = surfaces.surfaces[min(support)].normal if support else np.array([0.0, 0.0, -1.0])
+    out: list[SeamCurve] = []
+    for pair in pairs:
+        if pair.a in support or pair.b in support:
+            continue
+        A, B = surfaces.surfaces[pair.a], surfaces.surfaces[pair.b]
+        ys, xs = pair.contact_px[:, 0], pair.contact_px[:, 1]
+        la = lab[ys, xs]
+        pa = p[ys[la == A.label], xs[la == A.label]]
+        pb = p[ys[la == B.label], xs[la == B.label]]
+        pa, pb = pa[np.isfinite(pa[:, 2])], pb[np.isfinite(pb[:, 2])]
+        if len(pa) < 5 or len(pb) < 5:
+            continue
+        if A.kind == "plane" and B.kind == "plane":
+            seam = _plane_pair(p, lab, A, B, pa, pb, noise, fp, up)
+            out += seam
+        elif A.kind != B.kind:
+            P, C = (A, B) if A.kind == "plane" else (B, A)
+            pp, pc = (pa, pb) if A.kind == "plane" else (pb, pa)
+            out += _plane_cylinder(P, C, pp, pc, noise, fp)
+    return out
+
+
+def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, pa: FloatArray, pb: FloatArray,
+                noise: NoiseModel, fp: FoldParams, up: FloatArray) -> list[SeamCurve]:  # fmt: skip
+    if abs(float(A.normal @ B.normal)) > np.cos(fp.min_turn_rad):
+        return []
+    near = np.vstack([pa, pb]).mean(axis=0)
+    p0, u = _line_of(A, B, near)
+    z = float(near[2])
+    sig = float(noise.sigma_m(z))
+    # concave: each side's points near the fold lie on the camera side of the other plane (a convex edge
+    # has both behind), at least one of them clearly
+    sa, sb = float(np.median(B.residual(pa))), float(np.median(A.residual(pb)))
+    if min(sa, sb) <= 0.0 or max(sa, sb) < fp.concave_sigma * sig:
+        return []
+    reach = fp.near_m + 3.0 * sig + 3.0 * float(noise.spacing_m(z))
+    out: list[SeamCurve] = []
+    ta, da = _line_coords(pa, p0, u)
+    tb, db = _line_coords(pb, p0, u)
+    ta, tb = ta[da <= reach], tb[db <= reach]
+    if len(ta) < 3 or len(tb) < 3:
+        return []
+    lo, hi = max(ta.min(), tb.min()), min(ta.max(), tb.max())
+    if hi - lo < fp.min_length_m:
+        return []
+    nb_ = int(np.ceil((hi - lo) / fp.bin_m))
+    ca = np.bincount(np.clip(((ta - lo) / fp.bin_m).astype(int), 0, nb_ - 1)[(ta >= lo) & (ta <= hi)], minlength=nb_)
+    cb = np.bincount(np.clip(((tb - lo) / fp.bin_m).astype(int), 0, nb_ - 1)[(tb >= lo) & (tb <= hi)], minlength=nb_)
+    for s0, s1 in covered_runs((ca > 0) & (cb > 0), int(fp.max_hole_m / fp.bin_m)):
+        t0, t1 = lo + s0 * fp.bin_m, lo + s1 * fp.bin_m
+        if t1 - t0 < fp.min_length_m:
+            continue
+        pts = np.array([p0 + t0 * u, p0 + t1 * u])
+        height = _standing_height(p, lab, A, B, p0, u, up)
+        joint = joint_type(A.normal, B.normal, up, height, fp.lap_height_m)
+        support = int(ca[s0:s1].sum() + cb[s0:s1].sum())
+        out.append(SeamCurve("linear", joint, pts, np.tile(A.normal, (2, 1)), np.tile(B.normal, (2, 1)),
+                             (A.label, B.label), support, max(A.rms_m, B.rms_m)))  # fmt: skip
+    return out
+
+
+def _standing_height(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p0: FloatArray, u: FloatArray,
+                     up: FloatArray) -> float:  # fmt: skip
+    """How far the more upright of the two faces reaches from the fold (98th percentile of its points)."""
+    S = A if abs(float(A.normal @ up)) < abs(float(B.normal @ up)) else B
+    q = p[lab == S.label]
+    q = q[np.isfinite(q[:, 2])][:: max(1, int((lab == S.label).sum()) // 3000)]
+    if len(q) == 0:
+        return 0.0
+    _, d = _line_coords(q, p0, u)
+    return float(np.percentile(d, 98))
+
+
+def _line_coords(q: FloatArray, p0: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Position along and distance from the line p0 + t u of (N, 3) points."""
+    d = q - p0
+    t = d @ u
+    return t, np.sqrt(np.maximum((d * d).sum(axis=1) - t * t, 0.0))
+
+
+def ring_points(P: Surface, C: Surface, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Points where the cylinder's rulings at angles ``theta`` meet the plane, and the radial unit normals."""
+    a = C.axis
+    e1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    radial = np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2
+    q = C.centre + C.radius * radial
+    t = -(q @ P.normal + P.offset) / float(P.normal @ a)
+    return q + t[:, None] * a, radial
+
+
+def _plane_cylinder(P: Surface, C: Surface, pp: FloatArray, pc: FloatArray, noise: NoiseModel,
+                    fp: FoldParams) -> list[SeamCurve]:  # fmt: skip
+    if abs(float(P.normal @ C.axis)) < np.cos(np.radians(30.0)):
+        return []  # only a cylinder standing on the plane (a pipe on a plate) makes a ring
+    z = float(np.median(np.vstack([pp, pc])[:, 2]))
+    sig = float(noise.sigma_m(z))
+    reach = fp.near_m + 3.0 * sig + 3.0 * float(noise.spacing_m(z))
+    # concave: the plate's points are outside the cylinder, the cylinder's above the plate
+    if np.median(C.residual(pp)) <= 0.0 or np.median(P.residual(pc)) < fp.concave_sigma * sig:
+        return []
+    n_bins = max(36, int(np.ceil(2 * np.pi * C.radius / fp.bin_m)))
+    theta = (np.arange(n_bins) + 0.5) * 2 * np.pi / n_bins
+    ring, radial = ring_points(P, C, theta)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(ring)
+    cover = []
+    for q in (pp, pc):
+        d, k = tree.query(q)
+        cover.append(np.bincount(k[d <= reach], minlength=n_bins))
+    out: list[SeamCurve] = []
+    for s0, s1 in covered_runs((cover[0] > 0) & (cover[1] > 0), int(fp.max_hole_m / fp.bin_m), closed=True):
+        idx = np.arange(s0, s1 + (1 if s1 - s0 == n_bins else 0)) % n_bins
+        if len(idx) * 2 * np.pi * C.radius / n_bins < fp.min_length_m:
+            continue
+        pts = ring[idx]
+        nrm_c = radial[idx]
+        out.append(SeamCurve("curved", "fillet", pts, np.tile(P.normal, (len(idx), 1)), nrm_c, (P.label, C.label),
+                             int(cover[0][idx].sum() + cover[1][idx].sum()), max(P.rms_m, C.rms_m)))  # fmt: skip
+    return out

@@ -1,0 +1,102 @@
+"""The capture's own noise: local plane fits in a small window at every pixel of the work image.
+
+Box filters give each pixel's window moments (count, mean, covariance) in float64; the smallest eigenvalue
+of the covariance is the variance of the points about their best local plane, its eigenvector the normal.
+On flat parts that variance is the depth noise; where the window straddles a fold or an edge it is much
+larger, which is what the surface segmentation reads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from perception.fine.types import NoiseModel
+
+FloatArray = NDArray[np.float64]
+
+NOISE_PERCENTILE = 30.0  # flat pixels dominate every capture; folds and edges sit in the upper tail
+FLOOR_M = 2e-5
+
+
+@dataclass(frozen=True)
+class LocalPlanes:
+    """Per pixel of an (h, w) work image: window point count, unit normal towards the camera (h, w, 3),
+    residual variance about the local plane (m^2) and surface variation (that variance over the trace)."""
+
+    count: NDArray[np.float64]
+    normal: NDArray[np.float64]
+    variance: NDArray[np.float64]
+    variation: NDArray[np.float64]
+    window_px: int
+
+
+def local_planes(points: NDArray[np.floating], *, window_px: int) -> LocalPlanes:
+    """Moments of each pixel's ``window_px`` square window of valid points (NaN = invalid)."""
+    import cv2
+
+    p = np.asarray(points, dtype=np.float64)
+    valid = np.isfinite(p[..., 2])
+    ref = np.nanmedian(p[valid], axis=0) if valid.any() else np.zeros(3)
+    q = np.where(valid[..., None], p - ref, 0.0)  # relative to one point: small sums, no cancellation
+
+    def box(img: FloatArray) -> FloatArray:
+        return np.asarray(cv2.boxFilter(img, cv2.CV_64F, (window_px, window_px), normalize=False,
+                                        borderType=cv2.BORDER_CONSTANT))  # fmt: skip
+
+    n = box(valid.astype(np.float64))
+    s = box(q)
+    prods = np.stack([q[..., 0] * q[..., 0], q[..., 0] * q[..., 1], q[..., 0] * q[..., 2],
+                      q[..., 1] * q[..., 1], q[..., 1] * q[..., 2], q[..., 2] * q[..., 2]], axis=-1)  # fmt: skip
+    ss = np.stack([box(prods[..., k]) for k in range(6)], axis=-1)
+    nn = np.maximum(n, 1.0)
+    m = s / nn[..., None]
+    c = ss / nn[..., None]
+    # the normal from the window means' central differences (a plane's means lie on it); the residual
+    # variance about that plane is the quadratic form n^T C n (the eigen-solve would cost 4x more)
+    st = max(1, window_px // 2)
+    du = np.full_like(m, np.nan)
+    dv = np.full_like(m, np.nan)
+    du[:, st:-st] = m[:, 2 * st :] - m[:, : -2 * st]
+    dv[st:-st, :] = m[2 * st :, :] - m[: -2 * st, :]
+    normal = np.cross(du, dv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    flip = np.einsum("hwk,hwk->hw", normal, np.where(valid[..., None], p, 0.0)) > 0
+    normal[flip] *= -1
+    nx, ny, nz = normal[..., 0], normal[..., 1], normal[..., 2]
+    cxx = c[..., 0] - m[..., 0] ** 2
+    cxy = c[..., 1] - m[..., 0] * m[..., 1]
+    cxz = c[..., 2] - m[..., 0] * m[..., 2]
+    cyy = c[..., 3] - m[..., 1] ** 2
+    cyz = c[..., 4] - m[..., 1] * m[..., 2]
+    czz = c[..., 5] - m[..., 2] ** 2
+    var = nx * nx * cxx + ny * ny * cyy + nz * nz * czz + 2 * (nx * ny * cxy + nx * nz * cxz + ny * nz * cyz)
+    total = np.maximum(cxx + cyy + czz, 1e-30)
+    var = np.clip(var, 0.0, None)
+    few = (n < 0.5 * window_px * window_px) | ~valid | ~np.isfinite(var)
+    var[few] = np.nan
+    normal[few] = np.nan
+    return LocalPlanes(n, normal, var, var / total, window_px)
+
+
+def estimate_noise(points: NDArray[np.floating], planes: LocalPlanes) -> NoiseModel:
+    """sigma(z) = s * z^2 fitted to the local plane residuals of full windows, and the pixel angle."""
+    z = np.asarray(points[..., 2], dtype=np.float64)
+    full = np.isfinite(planes.variance) & (planes.count >= planes.window_px**2 - 0.5) & np.isfinite(z)
+    if full.sum() < 100:
+        full = np.isfinite(planes.variance) & np.isfinite(z)
+    if not full.any():
+        raise ValueError("no pixel has a full window of valid depth: cannot measure the noise")
+    k = planes.window_px**2
+    # the variance of k points about their own best plane underestimates sigma^2 by (k - 3) / k
+    sig = np.sqrt(planes.variance[full] * k / max(k - 3, 1))
+    s = float(np.percentile(sig / z[full] ** 2, NOISE_PERCENTILE))
+    x = np.asarray(points[..., 0], dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.abs(np.diff(x / z, axis=1))
+    d = d[np.isfinite(d)]
+    angle = float(np.median(d)) if d.size else 1e-3
+    return NoiseModel(sigma_1m_m=max(s, FLOOR_M), floor_m=FLOOR_M, pixel_angle_rad=max(angle, 1e-6))

@@ -1,0 +1,367 @@
+"""Surfaces first: the work image split into fitted planes and cylinders, with thresholds from its noise.
+
+1. A pixel is *smooth* when its window's residual about the local plane is within a few sigma of the
+   measured noise at its range; folds, edges and flying pixels are not.
+2. Smooth pixels are joined to their 4-neighbours unless the normal turns or the depth jumps between them
+   (both thresholds scale with the noise and the sample spacing); each connected piece is a patch.
+3. Each patch is fitted with a plane, or, when its normals fan out about one axis, a cylinder; a patch that
+   neither fits is dropped.
+4. Each surface then grows, pixel ring by pixel ring, into the unassigned pixels next to it whose points lie
+   on it within the noise: the blurred band around a fold is shared out to the two surfaces up to the
+   corner, so that their supports meet where the seam is.
+5. Planes whose pixels touch and which are one plane within the noise are merged (a face split by a
+   specular hole or a shadow is one face).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from perception.fine.noise import LocalPlanes
+from perception.fine.types import NoiseModel, Surface, SurfaceSet
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SurfaceParams:
+    smooth_sigma: float = 3.0  # a pixel is smooth when its local plane residual is within this many sigma
+    normal_turn_rad: float = np.radians(40.0)  # a fold: normals one window apart turn more than this
+    jump_sigma: float = 6.0  # a depth jump between neighbours beyond this many sigma (plus spacing) splits
+    min_pixels: int = 25  # smallest patch kept (work resolution)
+    inlier_sigma: float = 4.0  # a point lies on a surface within this many sigma of the noise at its range
+    plane_share: float = 0.97  # a patch is one plane when this share of it lies on its best plane
+    grow_sigma: float = 3.0
+    grow_rings: int = 6
+    cylinder_min_turn_rad: float = np.radians(20.0)  # a patch whose normals spread less is not a cylinder
+    merge_angle_rad: float = np.radians(3.0)
+    min_width_px: float = 1.5  # a plane's support must be this wide (RMS across its narrow direction)
+
+
+def _fit_plane(p: FloatArray) -> tuple[FloatArray, float, float]:
+    """Least-squares plane of (N, 3) points: unit normal (towards the camera), offset, RMS residual."""
+    c = p.mean(axis=0)
+    q = p - c
+    w, v = np.linalg.eigh(q.T @ q / max(len(p), 1))
+    n = v[:, 0]
+    if n @ c > 0:  # towards the camera
+        n = -n
+    return n, -float(n @ c), float(np.sqrt(max(w[0], 0.0)))
+
+
+def _two_dimensional(q: FloatArray, spacing_m: float, sp: SurfaceParams) -> bool:
+    """A plane needs support in two directions: points along a strip a pixel or two wide fit any plane
+    through their line (a face seen at a grazing angle, a thin edge)."""
+    c = q - q.mean(axis=0)
+    w = np.linalg.eigvalsh(c.T @ c / max(len(q), 1))
+    return bool(np.sqrt(max(w[1], 0.0)) >= sp.min_width_px * spacing_m)
+
+
+def _robust_plane(p: FloatArray, tol: float) -> tuple[FloatArray, float, float, NDArray[np.bool_]]:
+    keep = np.ones(len(p), bool)
+    n, d, rms = _fit_plane(p)
+    for _ in range(3):
+        res = np.abs(p @ n + d)
+        new = res <= max(tol, 2.5 * rms)
+        if new.sum() < 10 or np.array_equal(new, keep):
+            break
+        keep = new
+        n, d, rms = _fit_plane(p[keep])
+    return n, d, rms, keep
+
+
+def _largest_connected(sub: NDArray[np.int64], pixels: NDArray[np.int64], width: int) -> NDArray[np.int64]:
+    """The members of ``sub`` (indices into ``pixels``, flat pixel indices) in its largest 8-connected piece."""
+    import cv2
+
+    ys, xs = np.divmod(pixels[sub], width)
+    y0, x0 = ys.min(), xs.min()
+    m = np.zeros((ys.max() - y0 + 1, xs.max() - x0 + 1), np.uint8)
+    m[ys - y0, xs - x0] = 1
+    n, comp = cv2.connectedComponents(m, connectivity=8)
+    if n <= 2:
+        return sub
+    c = comp[ys - y0, xs - x0]
+    best = int(np.argmax(np.bincount(c, minlength=n)[1:])) + 1
+    return sub[c == best]
+
+
+def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.random.Generator, *,
+                   pixels: NDArray[np.int64], width: int, max_planes: int = 8,
+                   trials: int = 150) -> list[NDArray[np.int64]]:  # fmt: skip
+    """Index sets of the planes found one after another (largest first) in (N, 3) points; each plane keeps
+    only its largest connected piece of pixels (scattered inliers of a tilted plane are not a surface)."""
+    left = np.arange(len(q))
+    out: list[NDArray[np.int64]] = []
+    while len(left) >= min_points and len(out) < max_planes:
+        sample = left if len(left) <= 3000 else rng.choice(left, 3000, replace=False)
+        tri = rng.integers(0, len(sample), (trials, 3))
+        a, b, c = q[sample[tri[:, 0]]], q[sample[tri[:, 1]]], q[sample[tri[:, 2]]]
+        nn = np.cross(b - a, c - a)
+        norm = np.linalg.norm(nn, axis=1)
+        good = norm > 1e-9
+        nn = nn[good] / norm[good, None]
+        dd = -(nn * a[good]).sum(axis=1)
+        cnt = (np.abs(q[sample] @ nn.T + dd) <= tol[sample, None]).sum(axis=0)
+        if cnt.size == 0:
+            break
+        k = int(np.argmax(cnt))
+        best_n, best_d, best_cnt = nn[k], dd[k], int(cnt[k])
+        if best_cnt < 0.5 * min_points * len(sample) / len(left):
+            break
+        inl = left[np.abs(q[left] @ best_n + best_d) <= tol[left]]
+        if len(inl) < min_points:
+            break
+        # refine on the inliers and take them again
+        n2, d2, _ = _fit_plane(q[inl])
+        inl = left[np.abs(q[left] @ n2 + d2) <= tol[left]]
+        if len(inl) < min_points:
+            break
+        piece = _largest_connected(inl, pixels, width)
+        if len(piece) >= min_points:
+            out.append(piece)
+            left = np.setdiff1d(left, piece, assume_unique=True)
+            continue
+        left = np.setdiff1d(left, inl, assume_unique=True)
+    return out
+
+
+def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatArray, float, float] | None:
+    """Axis, a centre on it, radius and RMS of a cylinder through (N, 3) points with (N, 3) normals, or None.
+
+    The axis is perpendicular to every normal (the normals' scatter has no component along it); the
+    centre and radius come from an algebraic circle fit of the points projected on the plane across it.
+    """
+    ok = np.all(np.isfinite(normals), axis=1)
+    if ok.sum() < 20:
+        return None
+    nm = normals[ok]
+    w, v = np.linalg.eigh(nm.T @ nm / len(nm))
+    axis = v[:, 0]
+    if w[1] < 0.02:  # normals hardly spread: a plane, not a cylinder
+        return None
+    e1 = v[:, 2]
+    e2 = np.cross(axis, e1)
+    x, y = p @ e1, p @ e2
+    A = np.column_stack([x, y, np.ones_like(x)])
+    b = x * x + y * y
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    cx, cy = sol[0] / 2, sol[1] / 2
+    r2 = sol[2] + cx * cx + cy * cy
+    if r2 <= 0:
+        return None
+    r = float(np.sqrt(r2))
+    res = np.hypot(x - cx, y - cy) - r
+    centre = cx * e1 + cy * e2 + float(np.mean(p @ axis)) * axis
+    return axis, centre, r, float(np.sqrt(np.mean(res**2)))
+
+
+def _shift(a: NDArray, dy: int, dx: int, fill: int | float) -> NDArray:
+    out = np.full_like(a, fill)
+    h, w = a.shape[:2]
+    ys, yd = (slice(0, h - dy), slice(dy, h)) if dy >= 0 else (slice(-dy, h), slice(0, h + dy))
+    xs, xd = (slice(0, w - dx), slice(dx, w)) if dx >= 0 else (slice(-dx, w), slice(0, w + dx))
+    out[yd, xd] = a[ys, xs]
+    return out
+
+
+def segment_surfaces(
+    points: NDArray[np.floating],
+    planes: LocalPlanes,
+    noise: NoiseModel,
+    *,
+    factor: int,
+    params: SurfaceParams | None = None,
+) -> SurfaceSet:
+    """Planes and cylinders of an (h, w, 3) work-resolution organized cloud (camera frame, NaN invalid)."""
+    import cv2
+
+    sp = params or SurfaceParams()
+    p = np.asarray(points, dtype=np.float64)
+    z = p[..., 2]
+    valid = np.isfinite(z)
+    zz = np.where(valid, z, 1.0)
+    sigma = noise.sigma_m(zz)
+    spacing = noise.spacing_m(zz)
+    n = np.nan_to_num(planes.normal)
+    h, w = z.shape
+    # a fold: the normal turns by more than normal_turn_rad between the pixels one window apart on either
+    # side (window-mean normals blur a fold over about a window, so neighbours alone turn too little)
+    st = max(1, planes.window_px // 2)
+    cos_t = np.cos(sp.normal_turn_rad)
+    fold = np.zeros(z.shape, bool)
+    fold[:, st:-st] |= np.einsum("ijk,ijk->ij", n[:, 2 * st :], n[:, : -2 * st]) < cos_t
+    fold[st:-st, :] |= np.einsum("ijk,ijk->ij", n[2 * st :, :], n[: -2 * st, :]) < cos_t
+    ok_px = valid & np.isfinite(planes.normal[..., 0]) & ~fold
+    # depth jumps between 4-neighbours cut links (tolerance: noise plus the spacing stretched by obliquity)
+    link_r = np.zeros(z.shape, bool)
+    link_d = np.zeros(z.shape, bool)
+    for link, (dy, dx) in ((link_r, (0, 1)), (link_d, (1, 0))):
+        a = (slice(0, h - dy), slice(0, w - dx))
+        b = (slice(dy, h), slice(dx, w))
+        dp = np.nan_to_num(p[b] - p[a])
+        off = np.abs(np.einsum("ijk,ijk->ij", dp, n[a]))
+        link[a] = ok_px[a] & ok_px[b] & (off < sp.jump_sigma * sigma[a] + 0.5 * spacing[a])
+    big = np.zeros((2 * h - 1, 2 * w - 1), np.uint8)
+    big[::2, ::2] = ok_px
+    big[::2, 1::2] = link_r[:, :-1]
+    big[1::2, ::2] = link_d[:-1, :]
+    n_comp, comp_big = cv2.connectedComponents(big, connectivity=4)
+    comp = comp_big[::2, ::2].astype(np.int32) - 1  # background (0) -> -1
+    comp[~ok_px] = -1
+    counts = np.bincount(comp[comp >= 0].ravel(), minlength=max(n_comp - 1, 0))
+
+    surfaces: list[Surface] = []
+    labels = np.full(z.shape, -1, np.int32)
+    order = np.argsort(comp.ravel(), kind="stable")
+    sorted_c = comp.ravel()[order]
+    starts = np.searchsorted(sorted_c, np.arange(len(counts)))
+    pn = planes.normal.reshape(-1, 3)
+    rng = np.random.default_rng(0)
+    sig_all = sigma.reshape(-1)
+    for c in np.flatnonzero(counts >= sp.min_pixels):
+        idx = order[starts[c] : starts[c] + counts[c]]
+        q = p.reshape(-1, 3)[idx]
+        zc = float(np.median(q[:, 2]))
+        tol = sp.inlier_sigma * sig_all[idx]  # per point: the noise grows with range
+        th = max(1, len(q) // 20000)  # fits on at most ~20k points; inliers are taken on all
+        nrm, d, rms = _fit_plane(q[::th])
+        for _ in range(3):
+            inl = np.abs(q[::th] @ nrm + d) <= tol[::th]
+            if inl.sum() < 10:
+                break
+            nrm, d, rms = _fit_plane(q[::th][inl])
+        # a face seen obliquely is noisier than the range alone says: its own residual scale, up to 3x
+        res = np.abs(q @ nrm + d)
+        scale = np.clip(1.4826 * np.median(res) / np.maximum(np.median(sig_all[idx]), 1e-9), 1.0, 3.0)
+        inl = res <= tol * scale
+        spacing_c = float(noise.spacing_m(zc))
+        if not _two_dimensional(q[::th], spacing_c, sp):
+            continue
+        if inl.mean() >= sp.plane_share:
+            lab = len(surfaces)
+            surfaces.append(Surface(lab, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc))
+            labels.reshape(-1)[idx[inl]] = lab
+            continue
+        cyl = fit_cylinder(q, pn[idx])
+        if cyl is not None:
+            axis, centre, r, crms = cyl
+            if crms <= sp.inlier_sigma * float(np.median(sig_all[idx])) / 2 and 0.003 < r < 1.0:
+                lab = len(surfaces)
+                surfaces.append(Surface(lab, "cylinder", np.zeros(3), 0.0, crms, len(idx), q.mean(axis=0), zc,
+                                        axis=axis, centre=centre, radius=r))  # fmt: skip
+                labels.reshape(-1)[idx] = lab
+                continue
+        # several planes joined across soft edges (a plate's top, its edge face and the table): split them
+        for sub in _ransac_planes(q, tol, sp.min_pixels, rng, pixels=idx, width=w):
+            if not _two_dimensional(q[sub], spacing_c, sp):
+                continue
+            nrm, d, rms = _fit_plane(q[sub])
+            lab = len(surfaces)
+            surfaces.append(Surface(lab, "plane", nrm, d, rms, len(sub), q[sub].mean(axis=0), zc))
+            labels.reshape(-1)[idx[sub]] = lab
+    labels = _grow(p, labels, surfaces, sigma, sp)
+    labels, surfaces = _merge_coplanar(p, labels, surfaces, noise, sp)
+    return SurfaceSet(labels, factor, tuple(surfaces))
+
+
+def _grow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
+          sp: SurfaceParams) -> NDArray[np.int32]:  # fmt: skip
+    """Ring by ring, unassigned valid pixels next to a surface join it when they lie on it within the noise
+    (the nearer surface wins where two could take a pixel)."""
+    if not surfaces:
+        return labels
+    lab = labels.copy()
+    valid = np.isfinite(p[..., 2])
+    pf = np.nan_to_num(p)
+    for _ in range(sp.grow_rings):
+        free = valid & (lab < 0)
+        if not free.any():
+            break
+        best = np.full(lab.shape, np.inf)
+        best_lab = np.full(lab.shape, -1, np.int32)
+        for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            cand = _shift(lab, dy, dx, -1)
+            m = free & (cand >= 0)
+            if not m.any():
+                continue
+            ys, xs = np.nonzero(m)
+            cl = cand[ys, xs]
+            res = np.full(len(ys), np.inf)
+            for s_lab in np.unique(cl):
+                sel = cl == s_lab
+                res[sel] = np.abs(surfaces[int(s_lab)].residual(pf[ys[sel], xs[sel]]))
+            better = res < best[ys, xs]
+            best[ys[better], xs[better]] = res[better]
+            best_lab[ys[better], xs[better]] = cl[better]
+        take = free & (best_lab >= 0) & (best <= sp.grow_sigma * sigma)
+        if not take.any():
+            break
+        lab[take] = best_lab[take]
+    return lab
+
+
+def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], noise: NoiseModel,
+                    sp: SurfaceParams) -> tuple[NDArray[np.int32], list[Surface]]:  # fmt: skip
+    """Planes whose pixels touch and that are one plane within the noise become one surface."""
+    if len(surfaces) < 2:
+        return labels, surfaces
+    parent = list(range(len(surfaces)))
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    touching: set[tuple[int, int]] = set()
+    n_lab = len(surfaces)
+    for dy, dx in ((0, 1), (1, 0)):
+        a = labels[: labels.shape[0] - dy, : labels.shape[1] - dx]
+        b = labels[dy:, dx:]
+        m = (a >= 0) & (b >= 0) & (a != b)
+        lo, hi = np.minimum(a[m], b[m]).astype(np.int64), np.maximum(a[m], b[m]).astype(np.int64)
+        for code in np.unique(lo * n_lab + hi).tolist():
+            touching.add((code // n_lab, code % n_lab))
+    cos_m = np.cos(sp.merge_angle_rad)
+    pf = np.nan_to_num(p)
+    flat = labels.reshape(-1)
+    order = np.argsort(flat, kind="stable")
+    starts = np.searchsorted(flat[order], np.arange(n_lab + 1))
+    pts_flat = pf.reshape(-1, 3)
+
+    def sample(lab: int) -> FloatArray:
+        idx = order[starts[lab] : starts[lab + 1]]
+        return pts_flat[idx[:: max(1, len(idx) // 2000)]]
+
+    for u, v in sorted(touching):
+        su, sv = surfaces[u], surfaces[v]
+        if su.kind != "plane" or sv.kind != "plane" or float(su.normal @ sv.normal) < cos_m:
+            continue
+        tol = 3.0 * float(noise.sigma_m(max(su.z_m, sv.z_m)))
+        pu = sample(u)
+        pv = sample(v)
+        if np.median(np.abs(sv.residual(pu))) > tol or np.median(np.abs(su.residual(pv))) > tol:
+            continue
+        parent[find(v)] = find(u)
+    roots = sorted({find(i) for i in range(len(surfaces))})
+    if len(roots) == len(surfaces):
+        return labels, surfaces
+    new_of = {r: k for k, r in enumerate(roots)}
+    remap = np.array([new_of[find(i)] for i in range(len(surfaces))] + [-1], np.int32)
+    new_labels = remap[labels]  # label -1 indexes the appended -1
+    merged: list[Surface] = []
+    for k, r in enumerate(roots):
+        members = [i for i in range(len(surfaces)) if find(i) == r]
+        if len(members) == 1:
+            s = surfaces[r]
+            merged.append(Surface(k, s.kind, s.normal, s.offset, s.rms_m, s.n_points, s.centroid, s.z_m, s.axis,
+                                  s.centre, s.radius))  # fmt: skip
+            continue
+        q = pf[new_labels == k]
+        nrm, d, rms = _fit_plane(q[:: max(1, len(q) // 20000)])
+        merged.append(Surface(k, "plane", nrm, d, rms, len(q), q.mean(axis=0), float(np.median(q[:, 2]))))
+    return new_labels, merged
