@@ -885,7 +885,7 @@ def detect_surfaces(
     """
     from perception.fine.adjacency import adjacent_pairs
     from perception.fine.folds import fold_seams
-    from perception.fine.gaps import gap_seams
+    from perception.fine.gaps import gap_seams, inner_gap_seams
     from perception.fine.noise import estimate_noise, local_planes
     from perception.fine.refine import refine_seams
     from perception.fine.support import find_support
@@ -931,6 +931,8 @@ def detect_surfaces(
         noise_full = NoiseModel(noise.sigma_1m_m, noise.floor_m, noise.pixel_angle_rad / factor)
         curves, used = refine_seams(curves, organized, capture.intrinsics, surf, noise_full)
     log.counts["cropped"] = used
+    with log.step("inner_gaps"):
+        curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=support)
     with log.step("view"):
         curves = clip_to_view(curves)
     t_fine = time.perf_counter() - t0 - t_coarse

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from perception.capture import CameraIntrinsics
 from perception.fine.runs import covered_runs
 from perception.fine.types import NoiseModel, Pair, SeamCurve, SurfaceSet
 
@@ -100,4 +101,204 @@ def gap_seams(
             out.append(SeamCurve("linear", "butt", pts, np.tile(A.normal, (2, 1)), np.tile(B.normal, (2, 1)),
                                  (A.label, B.label), int(ca[s0:s1].sum() + cb[s0:s1].sum()), max(A.rms_m, B.rms_m),
                                  gap_m=width))  # fmt: skip
+    return out
+
+
+def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,
+               trials: int = 300, max_lines: int = 3) -> list[tuple[FloatArray, FloatArray]]:  # fmt: skip
+    """Straight thin lines through (N, 3) hole points on a plane, RANSAC on point pairs: each line's points
+    (within 1 mm) and direction, when it is long and its 2 mm bins are mostly hit (a gap seen in dots)."""
+    out: list[tuple[FloatArray, FloatArray]] = []
+    left = g
+    for _ in range(max_lines):
+        if len(left) < 15:
+            break
+        i = rng.integers(0, len(left), (trials, 2))
+        d = left[i[:, 1]] - left[i[:, 0]]
+        ln = np.linalg.norm(d, axis=1)
+        ok = ln > 0.01
+        if not ok.any():
+            break
+        d = d[ok] / ln[ok, None]
+        o = left[i[ok, 0]]
+        across = np.cross(normal, d)
+        dist = np.abs(np.einsum("tk,nk->tn", across, left) - (across * o).sum(axis=1)[:, None])
+        inl = dist <= 0.001
+        best = int(np.argmax(inl.sum(axis=1)))
+        pts = left[inl[best]]
+        if len(pts) < 15:
+            break
+        # least squares on the inliers, then the points of this gap (within its widest) leave the pool
+        c = pts.mean(axis=0)
+        _, v = np.linalg.eigh(np.cov((pts - c).T))
+        u = v[:, 2] - (v[:, 2] @ normal) * normal
+        u /= np.linalg.norm(u)
+        t = (pts - c) @ u
+        length = float(np.ptp(t))
+        bins = max(1, int(length / 0.002))
+        hit = np.bincount(np.clip(((t - t.min()) / 0.002).astype(int), 0, bins - 1), minlength=bins) > 0
+        off = np.abs((left - c) @ np.cross(normal, u))
+        left = left[off > 0.0025]
+        if length >= gp.min_length_m and hit.mean() >= 0.4:
+            out.append((pts, u))
+    return out
+
+
+@dataclass(frozen=True)
+class InnerGapParams:
+    behind_m: float = 0.001  # a pixel this far behind the plate's plane (plus noise) sees through the gap
+    close_px: int = 9  # closing that bridges the gap when filling the plate's outline (full resolution)
+    min_length_m: float = 0.020
+    max_width_rms_m: float = 0.0015
+    side_m: float = 0.004  # plate points this close to the gap line give its edges
+    min_side_share: float = 0.6
+    far_m: float = 0.008  # ... and this far out on both sides
+
+
+def inner_gap_seams(
+    full: NDArray[np.float32],
+    intr: CameraIntrinsics,
+    surfaces: SurfaceSet,
+    noise_full: NoiseModel,
+    *,
+    support: frozenset[int],
+    params: InnerGapParams | None = None,
+) -> list[SeamCurve]:
+    """Butt gaps too narrow to split a plate at the work resolution: inside one plane's outline, at full
+    resolution, a long thin line of pixels with no depth or depth behind the plane, with the plane on both
+    sides of it all along."""
+    import cv2
+
+    gp = params or InnerGapParams()
+    f = surfaces.factor
+    H, W = full.shape[:2]
+    out: list[SeamCurve] = []
+    rays = None
+    for s in surfaces.surfaces:
+        if s.kind != "plane" or s.label in support:
+            continue
+        small = (surfaces.labels == s.label).astype(np.uint8)
+        ys, xs = np.nonzero(small)
+        if len(ys) < 50:
+            continue
+        y0, y1 = max(ys.min() * f - f, 0), min((ys.max() + 1) * f + f, H)
+        x0, x1 = max(xs.min() * f - f, 0), min((xs.max() + 1) * f + f, W)
+        mask = cv2.resize(small[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1], None, fx=f, fy=f,
+                          interpolation=cv2.INTER_NEAREST)  # fmt: skip
+        region = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        oy, ox = ys.min() * f - y0, xs.min() * f - x0
+        region[oy : oy + mask.shape[0], ox : ox + mask.shape[1]] = mask[: y1 - y0 - oy, : x1 - x0 - ox]
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (gp.close_px, gp.close_px))
+        filled = cv2.morphologyEx(region, cv2.MORPH_CLOSE, k).astype(bool)
+        inner = cv2.erode(filled.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        pts = full[y0:y1, x0:x1].astype(np.float64)
+        z = pts[..., 2]
+        res = np.einsum("ijk,k->ij", np.nan_to_num(pts), s.normal) + s.offset
+        sig = noise_full.sigma_m(np.where(np.isfinite(z), z, s.z_m))
+        hole = inner & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
+        on_plane = filled & np.isfinite(z) & (np.abs(res) <= 4.0 * sig)
+        hy, hx = np.nonzero(hole)
+        if len(hy) < 15:
+            continue
+        if rays is None:
+            uu, vv = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+            rays = np.dstack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy, np.ones_like(uu)])
+        r = rays[hy + y0, hx + x0]
+        g_all = r * (-s.offset / (r @ s.normal))[:, None]  # the hole pixels' rays met with the plate's plane
+        for g, u in _gap_lines(g_all, s.normal, gp, rng=np.random.default_rng(0)):
+            c3 = g.mean(axis=0)
+            w = np.linalg.eigvalsh(np.cov((g - c3).T))
+            u = u - (u @ s.normal) * s.normal
+            u /= np.linalg.norm(u)
+            across = np.cross(s.normal, u)
+            # the plate on both sides: on-plane points within side_m of the gap line
+            pp = pts[on_plane]
+            d = pp - c3
+            a_off, t_along = d @ across, d @ u
+            gap_half = 2.0 * float(np.sqrt(max(w[1], 0.0))) + 0.5 * float(noise_full.spacing_m(s.z_m))
+            tg = (g - c3) @ u
+            lo, hi = float(tg.min()), float(tg.max())
+            near = (t_along >= lo) & (t_along <= hi) & (np.abs(a_off) <= gap_half + gp.side_m)
+            left, right = near & (a_off < 0), near & (a_off > 0)
+            if left.sum() < 10 or right.sum() < 10:
+                continue
+            bins = np.linspace(lo, hi, max(2, int((hi - lo) / 0.002)) + 1)
+            hl = np.histogram(t_along[left], bins)[0] > 0
+            hr = np.histogram(t_along[right], bins)[0] > 0
+            if (hl & hr).mean() < gp.min_side_share:
+                continue
+            # nothing stands in the strip (a wall's base with its stereo shadow beside it is not a gap)
+            allp = pts[np.isfinite(z)]
+            d_all = allp - c3
+            strip = (np.abs(d_all @ across) <= gap_half + 0.002) & (d_all @ u >= lo) & (d_all @ u <= hi)
+            in_front = (allp[strip] @ s.normal + s.offset) > 4.0 * float(noise_full.sigma_m(s.z_m)) + 0.001
+            if strip.any() and in_front.mean() > 0.05:
+                continue
+            # and the plates reach well beyond: not holes along a narrow face (a plate's edge face)
+            far = (t_along >= lo) & (t_along <= hi) & (np.abs(a_off) >= gp.far_m) & (np.abs(a_off) <= 2 * gp.far_m)
+            fl = np.histogram(t_along[far & (a_off < 0)], bins)[0] > 0
+            fr = np.histogram(t_along[far & (a_off > 0)], bins)[0] > 0
+            if (fl & fr).mean() < gp.min_side_share:
+                continue
+            # each plate's edge lies between its last pixel on the plane and the first pixel that sees
+            # through the gap; the seam is midway between the two edges
+            h_off = (g - c3) @ across
+            edge_l = 0.5 * (float(np.percentile(a_off[left], 97)) + float(np.percentile(h_off, 3)))
+            edge_r = 0.5 * (float(np.percentile(a_off[right], 3)) + float(np.percentile(h_off, 97)))
+            width = edge_r - edge_l
+            if not (0.0 < width < 0.006):
+                continue
+            # a gap is empty: few pixels inside it lie on the plate (random dropouts on a face seen at a grazing
+            # angle line up as well as a gap's dots, but between them the face is there)
+            centre_band = np.abs(a_off - 0.5 * (edge_l + edge_r)) <= max(0.25 * width, 0.5 * float(
+                noise_full.spacing_m(s.z_m)))  # fmt: skip
+            band_all = strip & (np.abs(d_all @ across - 0.5 * (edge_l + edge_r)) <= max(0.25 * width, 0.5 * float(
+                noise_full.spacing_m(s.z_m))))  # fmt: skip
+            if band_all.any() and (centre_band & near).sum() > 0.3 * band_all.sum():
+                continue
+            mid = c3 + 0.5 * (edge_l + edge_r) * across
+            pts_seam = np.array([mid + lo * u, mid + hi * u])
+            nrm = np.tile(s.normal, (2, 1))
+            out.append(SeamCurve("linear", "butt", pts_seam, nrm, nrm, (s.label, s.label), int(near.sum()), s.rms_m,
+                                 gap_m=width))  # fmt: skip
+    return out
+
+
+def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,
+               trials: int = 300, max_lines: int = 3) -> list[tuple[FloatArray, FloatArray]]:  # fmt: skip
+    """Straight thin lines through (N, 3) hole points on a plane, RANSAC on point pairs: each line's points
+    (within 1 mm) and direction, when it is long and its 2 mm bins are mostly hit (a gap seen in dots)."""
+    out: list[tuple[FloatArray, FloatArray]] = []
+    left = g
+    for _ in range(max_lines):
+        if len(left) < 15:
+            break
+        i = rng.integers(0, len(left), (trials, 2))
+        d = left[i[:, 1]] - left[i[:, 0]]
+        ln = np.linalg.norm(d, axis=1)
+        ok = ln > 0.01
+        if not ok.any():
+            break
+        d = d[ok] / ln[ok, None]
+        o = left[i[ok, 0]]
+        across = np.cross(normal, d)
+        dist = np.abs(np.einsum("tk,nk->tn", across, left) - (across * o).sum(axis=1)[:, None])
+        inl = dist <= 0.001
+        best = int(np.argmax(inl.sum(axis=1)))
+        pts = left[inl[best]]
+        if len(pts) < 15:
+            break
+        # least squares on the inliers, then the points of this gap (within its widest) leave the pool
+        c = pts.mean(axis=0)
+        _, v = np.linalg.eigh(np.cov((pts - c).T))
+        u = v[:, 2] - (v[:, 2] @ normal) * normal
+        u /= np.linalg.norm(u)
+        t = (pts - c) @ u
+        length = float(np.ptp(t))
+        bins = max(1, int(length / 0.002))
+        hit = np.bincount(np.clip(((t - t.min()) / 0.002).astype(int), 0, bins - 1), minlength=bins) > 0
+        off = np.abs((left - c) @ np.cross(normal, u))
+        left = left[off > 0.0025]
+        if length >= gp.min_length_m and hit.mean() >= 0.4:
+            out.append((pts, u))
     return out

@@ -70,7 +70,9 @@ def refine_seams(
         q = _near_points(full, intr, s.points, rp.band_m)
         used += len(q)
         A, B = surfaces.surfaces[s.surfaces[0]], surfaces.surfaces[s.surfaces[1]]
-        if s.kind == "linear" and A.kind == "plane" and B.kind == "plane":
+        if s.joint == "butt":
+            out.append(s)
+        elif s.kind == "linear" and A.kind == "plane" and B.kind == "plane":
             out.append(_refine_line(s, q, A, B, noise_full, rp))
         elif s.kind == "curved":
             out.append(_refine_ring(s, q, A, B, noise_full, rp))
