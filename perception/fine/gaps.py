@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
 from perception.fine.runs import covered_runs
-from perception.fine.types import NoiseModel, Pair, SeamCurve, SurfaceSet
+from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, SurfaceSet
 
 
 @dataclass(frozen=True)
@@ -101,46 +101,6 @@ def gap_seams(
             out.append(SeamCurve("linear", "butt", pts, np.tile(A.normal, (2, 1)), np.tile(B.normal, (2, 1)),
                                  (A.label, B.label), int(ca[s0:s1].sum() + cb[s0:s1].sum()), max(A.rms_m, B.rms_m),
                                  gap_m=width))  # fmt: skip
-    return out
-
-
-def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,
-               trials: int = 300, max_lines: int = 3) -> list[tuple[FloatArray, FloatArray]]:  # fmt: skip
-    """Straight thin lines through (N, 3) hole points on a plane, RANSAC on point pairs: each line's points
-    (within 1 mm) and direction, when it is long and its 2 mm bins are mostly hit (a gap seen in dots)."""
-    out: list[tuple[FloatArray, FloatArray]] = []
-    left = g
-    for _ in range(max_lines):
-        if len(left) < 15:
-            break
-        i = rng.integers(0, len(left), (trials, 2))
-        d = left[i[:, 1]] - left[i[:, 0]]
-        ln = np.linalg.norm(d, axis=1)
-        ok = ln > 0.01
-        if not ok.any():
-            break
-        d = d[ok] / ln[ok, None]
-        o = left[i[ok, 0]]
-        across = np.cross(normal, d)
-        dist = np.abs(np.einsum("tk,nk->tn", across, left) - (across * o).sum(axis=1)[:, None])
-        inl = dist <= 0.001
-        best = int(np.argmax(inl.sum(axis=1)))
-        pts = left[inl[best]]
-        if len(pts) < 15:
-            break
-        # least squares on the inliers, then the points of this gap (within its widest) leave the pool
-        c = pts.mean(axis=0)
-        _, v = np.linalg.eigh(np.cov((pts - c).T))
-        u = v[:, 2] - (v[:, 2] @ normal) * normal
-        u /= np.linalg.norm(u)
-        t = (pts - c) @ u
-        length = float(np.ptp(t))
-        bins = max(1, int(length / 0.002))
-        hit = np.bincount(np.clip(((t - t.min()) / 0.002).astype(int), 0, bins - 1), minlength=bins) > 0
-        off = np.abs((left - c) @ np.cross(normal, u))
-        left = left[off > 0.0025]
-        if length >= gp.min_length_m and hit.mean() >= 0.4:
-            out.append((pts, u))
     return out
 
 
