@@ -35,7 +35,7 @@ class SurfaceParams:
     inlier_sigma: float = 4.0  # a point lies on a surface within this many sigma of the noise at its range
     plane_share: float = 0.97  # a patch is one plane when this share of it lies on its best plane
     grow_sigma: float = 3.0
-    grow_rings: int = 6
+    grow_rings: int = 10
     cylinder_min_turn_rad: float = np.radians(20.0)  # a patch whose normals spread less is not a cylinder
     merge_angle_rad: float = np.radians(3.0)
     min_width_px: float = 1.5  # a plane's support must be this wide (RMS across its narrow direction)
@@ -132,31 +132,84 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
 def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatArray, float, float] | None:
     """Axis, a centre on it, radius and RMS of a cylinder through (N, 3) points with (N, 3) normals, or None.
 
-    The axis is perpendicular to every normal (the normals' scatter has no component along it); the
-    centre and radius come from an algebraic circle fit of the points projected on the plane across it.
+    Start: the axis is perpendicular to every normal (the normals' scatter has no component along it) and
+    the centre and radius come from an algebraic circle fit of the points projected across it. Then a
+    robust least-squares fit of the radial distances over axis, centre and radius (the window normals are
+    blurred near the cylinder's outline and its fold with a plate, so the start's axis tilts a little).
     """
+    from scipy.optimize import least_squares
+
     ok = np.all(np.isfinite(normals), axis=1)
     if ok.sum() < 20:
         return None
     nm = normals[ok]
-    w, v = np.linalg.eigh(nm.T @ nm / len(nm))
-    axis = v[:, 0]
+    w, _v = np.linalg.eigh(nm.T @ nm / len(nm))
     if w[1] < 0.02:  # normals hardly spread: a plane, not a cylinder
         return None
-    e1 = v[:, 2]
+    # the axis: the direction most normals are perpendicular to (pairs of normals propose it; a cap's or a
+    # plate's normals, parallel to the axis, would pull a plain eigenvector off it)
+    rng = np.random.default_rng(0)
+    i = rng.integers(0, len(nm), (200, 2))
+    cand = np.cross(nm[i[:, 0]], nm[i[:, 1]])
+    norm = np.linalg.norm(cand, axis=1)
+    cand = cand[norm > 0.2] / norm[norm > 0.2, None]
+    if len(cand) == 0:
+        return None
+    votes = (np.abs(nm[:: max(1, len(nm) // 2000)] @ cand.T) < 0.1).sum(axis=0)
+    axis = cand[int(np.argmax(votes))]
+    perp = np.abs(nm @ axis) < 0.15
+    if perp.sum() >= 20:
+        _w2, v2 = np.linalg.eigh(nm[perp].T @ nm[perp] / perp.sum())
+        axis = v2[:, 0]
+    start = _circle_across(p[ok][perp] if perp.sum() >= 20 else p, axis)
+    if start is None:
+        return None
+    centre, r = start
+    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    q = p[:: max(1, len(p) // 4000)]
+    scale = max(r, 1e-3)
+
+    def resid(x: FloatArray) -> FloatArray:
+        a = axis + x[0] * e1 + x[1] * e2
+        a /= np.linalg.norm(a)
+        c = centre + x[2] * e1 + x[3] * e2
+        d = q - c
+        radial = d - np.outer(d @ a, a)
+        return np.asarray(np.linalg.norm(radial, axis=1) - x[4])
+
+    r0 = resid(np.array([0.0, 0.0, 0.0, 0.0, r]))
+    q = q[np.abs(r0) <= np.percentile(np.abs(r0), 70)]  # the start's worst 30% (other faces) sit out
+    sig0 = float(np.median(np.abs(resid(np.array([0.0, 0.0, 0.0, 0.0, r]))))) + 1e-6
+    sol = least_squares(resid, np.array([0.0, 0.0, 0.0, 0.0, r]), loss="soft_l1", f_scale=max(sig0, 1e-4),
+                        x_scale=np.array([0.05, 0.05, scale, scale, scale]))  # fmt: skip
+    x = sol.x
+    a = axis + x[0] * e1 + x[1] * e2
+    a /= np.linalg.norm(a)
+    c = centre + x[2] * e1 + x[3] * e2
+    r = float(x[4])
+    if r <= 0:
+        return None
+    d = p - c
+    res = np.linalg.norm(d - np.outer(d @ a, a), axis=1) - r
+    c = c + float(np.mean(d @ a)) * a
+    return a, c, r, float(np.sqrt(np.mean(res**2)))
+
+
+def _circle_across(p: FloatArray, axis: FloatArray) -> tuple[FloatArray, float] | None:
+    """Centre (on the plane across ``axis`` through the origin) and radius of an algebraic circle fit."""
+    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
     e2 = np.cross(axis, e1)
     x, y = p @ e1, p @ e2
     A = np.column_stack([x, y, np.ones_like(x)])
-    b = x * x + y * y
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    sol, *_ = np.linalg.lstsq(A, x * x + y * y, rcond=None)
     cx, cy = sol[0] / 2, sol[1] / 2
     r2 = sol[2] + cx * cx + cy * cy
     if r2 <= 0:
         return None
-    r = float(np.sqrt(r2))
-    res = np.hypot(x - cx, y - cy) - r
-    centre = cx * e1 + cy * e2 + float(np.mean(p @ axis)) * axis
-    return axis, centre, r, float(np.sqrt(np.mean(res**2)))
+    return cx * e1 + cy * e2, float(np.sqrt(r2))
 
 
 def _shift(a: NDArray, dy: int, dx: int, fill: int | float) -> NDArray:
@@ -247,13 +300,26 @@ def segment_surfaces(
             labels.reshape(-1)[idx[inl]] = lab
             continue
         cyl = fit_cylinder(q, pn[idx])
-        if cyl is not None:
-            axis, centre, r, crms = cyl
-            if crms <= sp.inlier_sigma * float(np.median(sig_all[idx])) / 2 and 0.003 < r < 1.0:
+        if cyl is not None and 0.003 < cyl[2] < 1.0:
+            axis, centre, r, _ = cyl
+            trial = Surface(-1, "cylinder", np.zeros(3), 0.0, 0.0, 0, q.mean(axis=0), zc, axis=axis, centre=centre,
+                            radius=r)  # fmt: skip
+            cres = np.abs(trial.residual(q))
+            inl = cres <= tol
+            if inl.mean() >= 0.6 and inl.sum() >= sp.min_pixels and _two_dimensional(q[inl], spacing_c, sp):
                 lab = len(surfaces)
-                surfaces.append(Surface(lab, "cylinder", np.zeros(3), 0.0, crms, len(idx), q.mean(axis=0), zc,
-                                        axis=axis, centre=centre, radius=r))  # fmt: skip
-                labels.reshape(-1)[idx] = lab
+                crms = float(np.sqrt(np.mean(cres[inl] ** 2)))
+                surfaces.append(Surface(lab, "cylinder", np.zeros(3), 0.0, crms, int(inl.sum()), q[inl].mean(axis=0),
+                                        zc, axis=axis, centre=centre, radius=r))  # fmt: skip
+                labels.reshape(-1)[idx[inl]] = lab
+                rest = np.flatnonzero(~inl)
+                if len(rest) >= sp.min_pixels:
+                    for sub in _ransac_planes(q[rest], tol[rest], sp.min_pixels, rng, pixels=idx[rest], width=w):
+                        if _two_dimensional(q[rest][sub], spacing_c, sp):
+                            nrm, d, rms = _fit_plane(q[rest][sub])
+                            lab = len(surfaces)
+                            surfaces.append(Surface(lab, "plane", nrm, d, rms, len(sub), q[rest][sub].mean(axis=0), zc))
+                            labels.reshape(-1)[idx[rest][sub]] = lab
                 continue
         # several planes joined across soft edges (a plate's top, its edge face and the table): split them
         for sub in _ransac_planes(q, tol, sp.min_pixels, rng, pixels=idx, width=w):

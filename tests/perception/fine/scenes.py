@@ -1,0 +1,74 @@
+"""Small constructed weldments rendered for the fine-stage tests (exact geometry known)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from functools import cache
+
+import numpy as np
+
+from perception.fine.noise import LocalPlanes, estimate_noise, local_planes
+from perception.fine.surfaces import segment_surfaces
+from perception.fine.types import NoiseModel, SurfaceSet
+from perception.transforms import make_X
+from sim_fakes.contacts import fold_seams
+from sim_fakes.hull import box_corners
+from sim_fakes.render import RenderResult, StereoSensor, render
+from sim_fakes.scenes import CameraSetup, Part, Scene, SeamDef
+
+TABLE = Part("table", "box", (2.0, 2.0, 0.04), make_X(np.eye(3), [0.0, 0.0, -0.02]), (0.2, 0.2, 0.2), workpiece=False)
+WHITE_ONLY = StereoSensor(sigma_corr_px=0.0, p_fly=0.0, p_speckle=0.0, specular_exponent=1e9)
+
+
+def hull(name: str, corners: np.ndarray, x: float = 0.0, y: float = 0.0, z: float = 0.0) -> Part:
+    return Part(name, "hull", (0, 0, 0), make_X(np.eye(3), [x, y, z]), (0.5, 0.5, 0.5), corners_part=corners)
+
+
+def scene_of(parts: tuple[Part, ...], eye: tuple[float, float, float], target=(0.0, 0.0, 0.02)) -> Scene:
+    found = fold_seams(parts)
+    seams = tuple(replace(s, faces=((s.faces[0][0] + 1, s.faces[0][1]), (s.faces[1][0] + 1, s.faces[1][1])))
+                  for s in found)  # fmt: skip
+    cam = CameraSetup(eye=eye, target=target, width=640, height=360, fx=460.0, fy=460.0)
+    return Scene("test", "", (TABLE, *parts), seams, cam)
+
+
+def tee() -> Scene:
+    """A 10 mm web, 80 mm tall and 160 mm long, on a 12 mm plate; seen from the -x side."""
+    base = hull("base", box_corners(0.30, 0.24, 0.012))
+    web = hull("web", box_corners(0.010, 0.16, 0.08), z=0.012)
+    return scene_of((base, web), eye=(-0.32, -0.10, 0.30))
+
+
+def pipe(radius: float = 0.04) -> Scene:
+    base = hull("base", box_corners(0.26, 0.26, 0.010))
+    cyl = Part("pipe", "cylinder", (radius, radius, 0.10), make_X(np.eye(3), [0.0, 0.0, 0.010]), (0.5, 0.5, 0.5))
+    return scene_of((base, cyl), eye=(-0.05, -0.34, 0.34))
+
+
+def butt(gap: float = 0.002) -> Scene:
+    left = hull("left", box_corners(0.12, 0.20, 0.008), x=-0.06 - gap / 2)
+    right = hull("right", box_corners(0.12, 0.20, 0.008), x=0.06 + gap / 2)
+    sc = scene_of((left, right), eye=(-0.10, -0.25, 0.32), target=(0.0, 0.0, 0.0))
+    top = [int(np.argmax([f.normal[2] for f in part.hull_world.faces])) for part in (left, right)]  # type: ignore[union-attr]
+    x = np.tile([-1.0, 0.0, 0.0], (2, 1))
+    seam = SeamDef("butt", "linear", np.array([[0.0, -0.1, 0.008], [0.0, 0.1, 0.008]]), ((1, top[0]), (2, top[1])),
+                   x, -x, gap_m=gap, joint="butt")  # fmt: skip
+    return replace(sc, seams=(*sc.seams, seam))
+
+
+@cache
+def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
+    sc = {"tee": tee, "pipe": pipe, "butt": butt}[name]()
+    if noise == "stereo":
+        return render(sc, noise="stereo", seed=seed, sensor=WHITE_ONLY)
+    return render(sc, noise="none", seed=seed)
+
+
+@cache
+def work(name: str, noise: str = "none", seed: int = 0) -> tuple[np.ndarray, LocalPlanes, NoiseModel, SurfaceSet]:
+    """The work image (every pixel: these renders are already 640 wide), its local planes, noise, surfaces."""
+    res = rendered(name, noise, seed)
+    p = res.capture.points_camera().astype(np.float64)
+    lp = local_planes(p, window_px=7)
+    nm = estimate_noise(p, lp)
+    return p, lp, nm, segment_surfaces(p, lp, nm, factor=1)

@@ -1,0 +1,48 @@
+"""Adjacency: surfaces that meet across a fold are neighbours; surfaces far apart in space are not."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from perception.fine.adjacency import adjacent_pairs
+
+from .scenes import rendered, work
+
+
+def label_of(res, surf, part: int) -> int:
+    f = np.bincount(res.face_index[res.part_index == part]).argmax()
+    m = (res.part_index == part) & (res.face_index == f) & (surf.labels >= 0)
+    return int(np.bincount(surf.labels[m]).argmax())
+
+
+def test_the_web_and_the_base_meet_and_their_contact_lies_along_the_fold() -> None:
+    res = rendered("tee")
+    p, _, nm, surf = work("tee")
+    web, base = label_of(res, surf, 2), label_of(res, surf, 1)
+    pairs = {(q.a, q.b): q for q in adjacent_pairs(surf, nm)}
+    key = (min(web, base), max(web, base))
+    assert key in pairs
+    # the contact pixels lie within the reach (6 mm) of the true fold line, at the pixels' range
+    seam = res.ground_truth[0].points_camera
+    u = (seam[1] - seam[0]) / np.linalg.norm(seam[1] - seam[0])
+    ys, xs = pairs[key].contact_px[:, 0], pairs[key].contact_px[:, 1]
+    mine = np.isin(surf.labels[ys, xs], [web, base])
+    q = p[ys[mine], xs[mine]]
+    d = q - seam[0]
+    dist = np.linalg.norm(d - np.outer(d @ u, u), axis=1)
+    # most of the two surfaces' contact is at the fold; the rest is where the web's top edge is seen against
+    # the base behind it (neighbours in the image, far apart in space: the folds step measures that)
+    close = dist < 0.010
+    assert close.mean() > 0.5
+    # and the close contact runs along the whole fold (2 mm bins)
+    length = float(np.linalg.norm(seam[1] - seam[0]))
+    t = d[close] @ u
+    hit = np.bincount(np.clip((t / 0.002).astype(int), 0, int(length / 0.002)), minlength=int(length / 0.002) + 1)
+    assert np.mean(hit[: int(length / 0.002)] > 0) > 0.9
+
+
+def test_no_pair_without_contact() -> None:
+    _, _, nm, surf = work("tee")
+    labels = {s.label for s in surf.surfaces}
+    for q in adjacent_pairs(surf, nm):
+        assert q.a < q.b and {q.a, q.b} <= labels and len(q.contact_px) >= 6

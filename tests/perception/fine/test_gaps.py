@@ -1,0 +1,40 @@
+"""Butt gaps: the centre line of a narrow gap between two plates, at their top surface, with its width."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from perception.evaluate import point_to_polyline_distance
+from perception.fine.adjacency import adjacent_pairs
+from perception.fine.gaps import gap_seams, inner_gap_seams
+from perception.fine.support import find_support
+
+from .scenes import rendered, work
+
+
+@pytest.mark.parametrize("noise", ["none", "stereo"])
+def test_a_2_mm_butt_gap_is_found_on_its_centre_line(noise: str) -> None:
+    res = rendered("butt", noise)
+    p, _, nm, surf = work("butt", noise)
+    sup = find_support(p, surf, nm)
+    # the gap splits the plates into two surfaces at this resolution, or not: both detectors, as the pipeline
+    seams = gap_seams(p, surf, adjacent_pairs(surf, nm), nm, support=sup)
+    seams += inner_gap_seams(res.capture.points_camera(), res.capture.intrinsics, surf, nm, support=sup)
+    (gt,) = res.ground_truth
+    near = [s for s in seams if np.median(point_to_polyline_distance(s.points, gt.points_camera)) < 0.003]
+    assert len(near) == 1 and len(seams) == 1
+    s = near[0]
+    samples = s.points[0] + np.linspace(0, 1, 50)[:, None] * (s.points[1] - s.points[0])
+    err = point_to_polyline_distance(samples, gt.points_camera)
+    assert np.median(err) < 2e-4
+    assert err.max() < (3e-4 if noise == "none" else 1e-3)  # the ends come from 2 mm bins at the work image
+    assert s.gap_m == pytest.approx(0.002, abs=0.001)
+    assert s.joint == "butt"
+
+
+def test_a_plate_without_a_gap_gives_none() -> None:
+    res = rendered("tee", "stereo")
+    p, _, nm, surf = work("tee", "stereo")
+    assert inner_gap_seams(res.capture.points_camera(), res.capture.intrinsics, surf, nm,
+                           support=find_support(p, surf, nm)) == []  # fmt: skip

@@ -1,0 +1,32 @@
+"""A seam is kept where both faces are seen at under 75 degrees, in runs of at least 20 mm."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from perception.fine.types import SeamCurve
+from perception.fine.visibility import clip_to_view
+
+
+def seam_along_x(normal_b: np.ndarray) -> SeamCurve:
+    pts = np.array([[-0.2, 0.0, 0.5], [0.2, 0.0, 0.5]])
+    na = np.tile([0.0, 0.0, -1.0], (2, 1))  # face a looks straight at the camera
+    return SeamCurve("linear", "fillet", pts, na, np.tile(normal_b, (2, 1)), (0, 1), 100, 1e-4)
+
+
+def test_the_seam_is_cut_where_face_b_turns_past_75_degrees() -> None:
+    # face b's normal is +x: at a point x along the seam the ray to the camera is (-x, 0, -0.5), and the
+    # incidence is under 75 degrees where -x / |(x, 0.5)| > cos 75, that is x < -0.5 cot(75 deg)
+    (kept,) = clip_to_view([seam_along_x(np.array([1.0, 0.0, 0.0]))])
+    x_cut = -0.5 / np.tan(np.radians(75.0))
+    assert kept.points[:, 0].min() == pytest.approx(-0.2, abs=1e-9)
+    assert kept.points[:, 0].max() == pytest.approx(x_cut, abs=0.0011)
+
+
+def test_a_seam_whose_faces_are_all_grazing_is_dropped_and_a_short_run_too() -> None:
+    assert clip_to_view([seam_along_x(np.array([0.0, 1.0, 0.0]))]) == []
+    short = seam_along_x(np.array([0.0, 0.0, -1.0]))
+    short = SeamCurve(short.kind, short.joint, short.points * [0.04, 1, 1], short.normals_a, short.normals_b,
+                      short.surfaces, short.support, short.rms_m)  # fmt: skip
+    assert clip_to_view([short]) == []  # 16 mm
