@@ -24,6 +24,7 @@ from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, Su
 class RefineParams:
     band_m: float = 0.020
     inlier_sigma: float = 3.5
+    corner_sigma: float = 3.0  # the fits leave out points this many sigma (plus a spacing) from the corner
     open_root_m: float = 0.0006  # both faces stop this far short of their intersection: an open root
     iterations: int = 3
     end_near_m: float = 0.0015  # support for the ends: points this close to the seam (plus noise, spacing)
@@ -95,6 +96,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
     if len(q) < 20:
         return s
     sig = noise.sigma_m(q[:, 2])
+    spacing = noise.spacing_m(q[:, 2])
     a, b = A, B
     va = _side(a, b, p0, u, _towards(A, u, s))
     vb = _side(b, a, p0, u, _towards(B, u, s))
@@ -102,8 +104,18 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
     for _ in range(rp.iterations):
         ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
         da, db = (q - line0) @ va, (q - line0) @ vb
-        on_a = (ra <= rp.inlier_sigma * sig) & (ra <= rb) & (da > -0.0005) & (da <= rp.band_m)
-        on_b = (rb <= rp.inlier_sigma * sig) & (rb < ra) & (db > -0.0005) & (db <= rp.band_m)
+        # near the corner a point lies within the noise of both faces: those points would pull each plane
+        # towards the other, so the fits use what lies beyond a few sigma of the current line
+        dl = q - line0
+        tl = dl @ u
+        dist = np.sqrt(np.maximum((dl * dl).sum(axis=1) - tl * tl, 0.0))
+        clear = dist > rp.corner_sigma * sig + spacing
+        side_a = (ra <= rb) & (da > -0.0005) & (da <= rp.band_m) & clear
+        side_b = (rb < ra) & (db > -0.0005) & (db <= rp.band_m) & clear
+        # each face's own noise (a face seen obliquely is noisier): gating it at the capture's typical
+        # sigma would cut one tail of its residuals and tilt the plane
+        on_a = side_a & (ra <= rp.inlier_sigma * _face_sigma(ra[side_a], sig, side_a))
+        on_b = side_b & (rb <= rp.inlier_sigma * _face_sigma(rb[side_b], sig, side_b))
         if on_a.sum() < 10 or on_b.sum() < 10:
             return s
         na, _, _ = _fit_plane(q[on_a])
@@ -124,15 +136,25 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
         u = uu
         va = _side(a, b, line0, u, line0 + va)
         vb = _side(b, a, line0, u, line0 + vb)
-    # open root: neither face reaches the intersection; the seam is the middle of their facing edges
-    ea = float(np.percentile((q[on_a] - line0) @ va, 2))
-    eb = float(np.percentile((q[on_b] - line0) @ vb, 2))
+    # open root: neither face reaches the intersection; the seam is the middle of their facing edges (each
+    # face's points on it, the corner zone included)
+    ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
+    da, db = (q - line0) @ va, (q - line0) @ vb
+    all_a = (ra <= rb) & (da > -0.0005) & (da <= rp.band_m) & (ra <= rp.inlier_sigma * sig)
+    all_b = (rb < ra) & (db > -0.0005) & (db <= rp.band_m) & (rb <= rp.inlier_sigma * sig)
+    if all_a.sum() < 10 or all_b.sum() < 10:
+        return s
+    ea = float(np.percentile(da[all_a], 2))
+    eb = float(np.percentile(db[all_b], 2))
     gap = 0.0
-    if min(ea, eb) > rp.open_root_m:
+    # near a closed corner each face's nearest points are lost in the other's noise: only a shortfall beyond
+    # that is an open root
+    zone = 3.0 * float(np.median(sig)) + 2.0 * float(np.median(spacing))
+    if min(ea, eb) > max(rp.open_root_m, zone):
         edge_a, edge_b = line0 + ea * va, line0 + eb * vb
         gap = float(np.linalg.norm(edge_b - edge_a))
         line0 = 0.5 * (edge_a + edge_b)
-    ends = _supported_ends(q[on_a], q[on_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
+    ends = _supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
                            noise, rp)  # fmt: skip
     if ends is None:
         return s
@@ -140,6 +162,17 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
                                                 (q[on_b] @ b.normal + b.offset) ** 2]))))  # fmt: skip
     return replace(s, points=ends, normals_a=np.tile(a.normal, (2, 1)), normals_b=np.tile(b.normal, (2, 1)),
                    support=int(on_a.sum() + on_b.sum()), rms_m=rms, gap_m=gap)  # fmt: skip
+
+
+def _face_sigma(res: FloatArray, sig: FloatArray, side: NDArray[np.bool_]) -> FloatArray:
+    """Per point: the larger of the capture's sigma at its range and the face's own robust residual scale
+    (from the points nearest the face within the noise), at most five times the capture's."""
+    if res.size < 10:
+        return sig
+    core = res[res <= np.percentile(res, 80)]
+    own = 1.4826 * float(np.median(core)) / 0.7  # the median of |r| over the inner 80% of a normal: 0.7 MAD
+    typical = float(np.median(sig[side]))
+    return np.maximum(sig, np.clip(own, typical, 5.0 * typical))
 
 
 def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line0: FloatArray, u: FloatArray,
