@@ -39,6 +39,8 @@ class SurfaceParams:
     cylinder_min_turn_rad: float = np.radians(20.0)  # a patch whose normals spread less is not a cylinder
     merge_angle_rad: float = np.radians(3.0)
     min_width_px: float = 1.5  # a plane's support must be this wide (RMS across its narrow direction)
+    narrow_min_pixels: int = 12
+    narrow_min_width_px: float = 0.8
 
 
 def _fit_plane(p: FloatArray) -> tuple[FloatArray, float, float]:
@@ -330,8 +332,50 @@ def segment_surfaces(
             surfaces.append(Surface(lab, "plane", nrm, d, rms, len(sub), q[sub].mean(axis=0), zc))
             labels.reshape(-1)[idx[sub]] = lab
     labels = _grow(p, labels, surfaces, sigma, sp)
+    # narrow faces (a bevel, a lap plate's edge, seen a few pixels wide) lose their middle to the fold cuts
+    # of both their edges; what is left between the grown surfaces is fitted again on its own
+    n_before = len(surfaces)
+    labels = _recover_narrow(p, labels, surfaces, sigma, noise, sp)
+    if len(surfaces) > n_before:
+        labels = _grow(p, labels, surfaces, sigma, sp)
     labels, surfaces = _merge_coplanar(p, labels, surfaces, noise, sp)
     return SurfaceSet(labels, factor, tuple(surfaces))
+
+
+def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
+                    noise: NoiseModel, sp: SurfaceParams) -> NDArray[np.int32]:  # fmt: skip
+    """Planes fitted to the connected pieces of valid pixels that no surface took (appends to ``surfaces``)."""
+    import cv2
+
+    free = (np.isfinite(p[..., 2]) & (labels < 0)).astype(np.uint8)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(free, connectivity=8)
+    lab = labels.copy()
+    flat_p = p.reshape(-1, 3)
+    for c in range(1, n):
+        if stats[c, cv2.CC_STAT_AREA] < sp.narrow_min_pixels:
+            continue
+        idx = np.flatnonzero(comp.reshape(-1) == c)
+        q = flat_p[idx]
+        zc = float(np.median(q[:, 2]))
+        tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
+        nrm, d, rms = _fit_plane(q)
+        for _ in range(3):
+            inl = np.abs(q @ nrm + d) <= tol
+            if inl.sum() < sp.narrow_min_pixels:
+                break
+            nrm, d, rms = _fit_plane(q[inl])
+        inl = np.abs(q @ nrm + d) <= tol
+        if inl.mean() < 0.85 or inl.sum() < sp.narrow_min_pixels:
+            continue
+        spacing = float(noise.spacing_m(zc))
+        c_ = q[inl] - q[inl].mean(axis=0)
+        w = np.linalg.eigvalsh(c_.T @ c_ / len(c_))
+        if np.sqrt(max(w[1], 0.0)) < sp.narrow_min_width_px * spacing:
+            continue
+        k = len(surfaces)
+        surfaces.append(Surface(k, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc))
+        lab.reshape(-1)[idx[inl]] = k
+    return lab
 
 
 def _grow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
