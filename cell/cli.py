@@ -41,11 +41,23 @@ def build_parser() -> argparse.ArgumentParser:
         description="Robotic welding cell: seam detection from one RGB-D shot, calibration, cell control.",
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
+    parser.add_argument("--version", action="version", version=f"weldcell {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMAND_MODULES:
         importlib.import_module(name).add_parser(sub)
     return parser
+
+
+def version() -> str:
+    """The installed distribution's version (pyproject.toml), or a note that weldcell is not installed."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("weldcell")
+    except PackageNotFoundError:
+        return "(not installed: run scripts/bootstrap.sh or pip install .)"
 
 
 def exit_code_for(err: BaseException) -> int:

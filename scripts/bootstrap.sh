@@ -26,20 +26,35 @@ fi
 PY="${PYTHON:-}"
 if [ -z "$PY" ]; then
     for cand in python3.13 python3.12 python3.11 python3; do
-        if command -v "$cand" >/dev/null && "$cand" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then
+        # pyenv shims answer `command -v` for versions that are not selected, then fail loudly when run
+        if command -v "$cand" >/dev/null && "$cand" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
             PY="$cand"; break
         fi
     done
 fi
 [ -n "$PY" ] || { say "Python 3.11 or newer is required"; exit 1; }
 
-stamp_want="$( (cat pyproject.toml; "$PY" --version) | sha256sum | cut -c1-16)"
+# pip -qq: errors only. Plain -q still prints a warning for every configured index location that lacks a
+# package (a machine's pip.conf may list local mirrors) and setuptools' notes on editable installs, pages of
+# them on a first run. WELDCELL_SETUP_VERBOSE=1 shows pip's full output.
+if [ -n "${WELDCELL_SETUP_VERBOSE:-}" ]; then PIP_Q=(); else PIP_Q=(-qq); fi
+pip_install() { .venv/bin/python -m pip install "${PIP_Q[@]}" "$@"; }
+
+stamp_want="$( (cat pyproject.toml constraints.txt; "$PY" --version) | sha256sum | cut -c1-16)"
 if [ ! -x .venv/bin/python ] || [ "$(cat .venv/.setup-stamp 2>/dev/null)" != "$stamp_want" ]; then
-    say "creating .venv and installing weldcell with its dependencies (about a minute)"
-    "$PY" -m venv .venv
-    .venv/bin/python -m pip install -q --upgrade pip
-    .venv/bin/python -m pip install -q -e '.[dev]'
+    t0=$SECONDS
+    if [ -x .venv/bin/python ]; then
+        say "pyproject.toml or constraints.txt changed: updating .venv"
+    else
+        say "creating .venv with $("$PY" --version)"
+        "$PY" -m venv .venv
+    fi
+    pip_install --upgrade 'pip>=24,<27'
+    say "installing weldcell and its dependencies within constraints.txt (about a minute the first time)"
+    pip_install -c constraints.txt -e '.[dev]'
     echo "$stamp_want" > .venv/.setup-stamp
+    say "ready in $((SECONDS - t0)) s: $(.venv/bin/weldcell --version), $(.venv/bin/python -c \
+        'import cv2, open3d, numpy; print(f"OpenCV {cv2.__version__}, Open3D {open3d.__version__}, NumPy {numpy.__version__}")')"
 fi
 
 case "$job" in
