@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from calibration.axxb import LinearMethod, calibrate_hand_eye_linear, relative_motions, resolve_backend
+from calibration.axxb import LinearMethod, calibrate_hand_eye_linear, relative_motions, require_opencv_hand_eye
 from calibration.board import BoardObservation
 from calibration.errors import CalibrationError
 from perception.transforms import TransformError, check_X, invert_X, make_X
@@ -105,8 +105,8 @@ class HandEyeResult:
 
     ``method``: ``"refined"`` or a :class:`~calibration.axxb.LinearMethod` value. For the refined
     result, ``start_method`` names the closed-form solution it started from, ``linear`` holds every
-    closed-form result (each a HandEyeResult), ``linear_failures`` the methods that failed and why,
-    and ``linear_backend`` whether OpenCV or the numpy port computed them.
+    closed-form result (each a HandEyeResult, computed by ``cv2.calibrateHandEye``) and ``linear_failures``
+    the methods that failed and why.
     """
 
     mode: HandEyeMode
@@ -122,7 +122,6 @@ class HandEyeResult:
     start_method: str | None = None
     linear: tuple[HandEyeResult, ...] = ()
     linear_failures: tuple[tuple[str, str], ...] = ()
-    linear_backend: str = ""
 
     def __post_init__(self) -> None:
         mode = HandEyeMode(self.mode)
@@ -235,7 +234,6 @@ def solve_hand_eye(
     dist: ArrayLike | None = None,
     refine: RefineParams | None = None,
     limits: DegeneracyLimits | None = None,
-    backend: str = "auto",
 ) -> HandEyeResult:
     """Solve the hand-eye transform from N paired views.
 
@@ -244,8 +242,8 @@ def solve_hand_eye(
     observed corner pixels and the (M_i, 3) board-frame points (metres) they image; with them (and
     ``K``, (3, 3), and ``dist``, OpenCV distortion coefficients) the refinement minimises reprojection
     error in pixels, else the 3D disagreement of board points. ``refine``: weights and loss of the
-    refinement (:class:`RefineParams`). ``backend``: for the closed-form methods, see
-    :func:`calibration.axxb.calibrate_hand_eye_linear`.
+    refinement (:class:`RefineParams`). The closed-form starts come from ``cv2.calibrateHandEye``
+    (:func:`calibration.axxb.calibrate_hand_eye_linear`).
 
     Raises CalibrationError for bad shapes, too few views, or degenerate motion (see
     :class:`DegeneracyLimits`), naming the reason.
@@ -253,7 +251,7 @@ def solve_hand_eye(
     problem = _build_problem(X_base_tool, X_camera_board, mode, corners_px, corners_board, K, dist)
     limits = limits or DegeneracyLimits()
     check_motion(problem.H, problem.C, limits=limits, mode=problem.mode)
-    chosen_backend = resolve_backend(backend)
+    require_opencv_hand_eye()
     params = refine or RefineParams()
 
     linear: list[HandEyeResult] = []
@@ -261,7 +259,7 @@ def solve_hand_eye(
     start: tuple[float, str, FloatArray, FloatArray] | None = None
     for method in LinearMethod:
         try:
-            X = calibrate_hand_eye_linear(problem.H, problem.C, method=method, backend=chosen_backend)
+            X = calibrate_hand_eye_linear(problem.H, problem.C, method=method)
             X = check_X(X, name=f"{method.value} solution", tol=1e-6)
         except (CalibrationError, TransformError, cv2.error, np.linalg.LinAlgError) as err:
             failures.append((method.value, str(err).strip().splitlines()[-1]))
@@ -286,7 +284,6 @@ def solve_hand_eye(
         start_method=start_method,
         linear=tuple(linear),
         linear_failures=tuple(failures),
-        linear_backend=chosen_backend,
     )
     _check_solution(problem, X, Y, limits=limits)
     logger.info(
@@ -310,7 +307,6 @@ def solve_hand_eye_from_observations(
     mode: HandEyeMode | str = HandEyeMode.EYE_IN_HAND,
     refine: RefineParams | None = None,
     limits: DegeneracyLimits | None = None,
-    backend: str = "auto",
 ) -> HandEyeResult:
     """:func:`solve_hand_eye` fed from :func:`calibration.board.detect_board` results (one per view)."""
     return solve_hand_eye(
@@ -323,7 +319,6 @@ def solve_hand_eye_from_observations(
         dist=dist,
         refine=refine,
         limits=limits,
-        backend=backend,
     )
 
 
@@ -658,7 +653,6 @@ def _evaluate(
     start_method: str | None = None,
     linear: tuple[HandEyeResult, ...] = (),
     linear_failures: tuple[tuple[str, str], ...] = (),
-    linear_backend: str = "",
 ) -> HandEyeResult:
     H_inv = np.stack([invert_X(h) for h in problem.H])
     C_pred = _predict_C(H_inv, X, Y)
@@ -690,7 +684,6 @@ def _evaluate(
         start_method=start_method,
         linear=linear,
         linear_failures=linear_failures,
-        linear_backend=linear_backend,
         **transforms,
     )
 

@@ -1,8 +1,10 @@
-"""The five closed-form AX = XB hand-eye methods of OpenCV's ``cv2.calibrateHandEye``.
+"""Test oracle: a numpy port of the five closed-form AX = XB methods of OpenCV's ``cv2.calibrateHandEye``.
 
-``calibrate_hand_eye_linear`` calls ``cv2.calibrateHandEye`` when the installed OpenCV exposes it and
-otherwise runs the numpy implementations below, which follow the same papers with OpenCV's
-formulation (all view pairs i < j, the same linear systems, the same normalisations):
+Production code calls OpenCV (:mod:`calibration.axxb`). This port was written when the opencv-python 5.0.0
+wheels did not expose ``calibrateHandEye`` (opencv/opencv#29565) and is kept as an independent check of
+what OpenCV returns: tests/calibration/test_axxb.py compares both with values recorded from OpenCV 4.12.
+It follows the same papers with OpenCV's formulation (all view pairs i < j, the same linear systems, the
+same normalisations):
 
 - Tsai & Lenz 1989 (modified Rodrigues vectors, then translation by least squares),
 - Park & Martin 1994 (rotation from the log-map correlation matrix),
@@ -10,114 +12,34 @@ formulation (all view pairs i < j, the same linear systems, the same normalisati
 - Andreff, Horaud & Espiau 1999 (Kronecker-product linear system, rotation and translation together),
 - Daniilidis 1998 (dual quaternions, SVD).
 
-Why a port: the opencv-python 5.0.0 wheels do not expose ``calibrateHandEye`` to Python
-(opencv/opencv#29565, fixed by opencv/opencv#29584 in later releases). Quaternions take the sign
-with w >= 0 (as OpenCV does since 4.10, opencv/opencv#24897), and Tsai uses only the view pairs
-whose rotation lies between about 17 and 116 degrees (the same filter as that fix).
-tests/calibration/test_axxb.py checks all five against values recorded from OpenCV 4.12.
-
-Conventions, in OpenCV's terms: ``X_base_tool`` ("gripper2base"), ``X_camera_board``
-("target2cam"); the result is ``X_tool_camera`` ("cam2gripper"), so that
-``X_base_tool[i] @ X_tool_camera @ X_camera_board[i]`` is the same board pose for every view.
+Quaternions take the sign with w >= 0 (as OpenCV does since 4.10, opencv/opencv#24897), and Tsai uses only
+the view pairs whose rotation lies between about 17 and 116 degrees (the same filter as that fix).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from enum import StrEnum
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
+from calibration.axxb import LinearMethod, relative_motions
 from calibration.errors import CalibrationError
-from perception.transforms import invert_X, make_X
+from perception.transforms import make_X
 
 FloatArray = NDArray[np.float64]
 
 
-class LinearMethod(StrEnum):
-    """The closed-form methods, named as OpenCV's ``CALIB_HAND_EYE_*`` flags (lower case)."""
-
-    TSAI = "tsai"
-    PARK = "park"
-    HORAUD = "horaud"
-    ANDREFF = "andreff"
-    DANIILIDIS = "daniilidis"
-
-    @property
-    def opencv_flag(self) -> int:
-        return int(getattr(cv2, f"CALIB_HAND_EYE_{self.name}"))
-
-
-def opencv_has_hand_eye() -> bool:
-    """True when the installed ``cv2`` exposes ``calibrateHandEye`` (absent from the 5.0.0 wheels)."""
-    return hasattr(cv2, "calibrateHandEye")
-
-
-def calibrate_hand_eye_linear(
-    X_base_tool: Sequence[ArrayLike] | FloatArray,
-    X_camera_board: Sequence[ArrayLike] | FloatArray,
-    *,
-    method: LinearMethod | str,
-    backend: str = "auto",
+def calibrate_hand_eye_numpy(
+    X_base_tool: Sequence[ArrayLike] | FloatArray, X_camera_board: Sequence[ArrayLike] | FloatArray, *, method: str
 ) -> FloatArray:
-    """(4, 4) ``X_tool_camera`` by one closed-form method.
-
-    ``X_base_tool``, ``X_camera_board``: N >= 3 (4, 4) poses each, metres, paired by view.
-    ``backend``: ``"opencv"`` (``cv2.calibrateHandEye``), ``"numpy"`` (this module) or ``"auto"``
-    (OpenCV when available). Input checks (count, degeneracy) are the caller's job; see
-    :mod:`calibration.handeye`.
-    """
-    m = LinearMethod(method)
-    Hg = _stack(X_base_tool, "X_base_tool")
-    Hc = _stack(X_camera_board, "X_camera_board")
-    if Hg.shape[0] != Hc.shape[0] or Hg.shape[0] < 3:
-        raise CalibrationError(f"need the same number (>= 3) of robot and board poses, got {len(Hg)} and {len(Hc)}")
-    chosen = resolve_backend(backend)
-    if chosen == "opencv":
-        R, t = cv2.calibrateHandEye(  # type: ignore[attr-defined]
-            [h[:3, :3] for h in Hg],
-            [h[:3, 3].reshape(3, 1) for h in Hg],
-            [c[:3, :3] for c in Hc],
-            [c[:3, 3].reshape(3, 1) for c in Hc],
-            method=m.opencv_flag,
-        )
-        return make_X(np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64).reshape(3))
+    """(4, 4) ``X_tool_camera`` by the numpy port of one of OpenCV's methods (same inputs as
+    :func:`calibration.axxb.calibrate_hand_eye_linear`)."""
+    Hg = np.asarray(X_base_tool, dtype=np.float64)
+    Hc = np.asarray(X_camera_board, dtype=np.float64)
     A, B = relative_motions(Hg, Hc)
-    return _NUMPY_METHODS[m](A, B)
-
-
-def resolve_backend(backend: str) -> str:
-    """``"opencv"`` or ``"numpy"`` for a requested backend (``"auto"`` picks OpenCV when it can)."""
-    if backend == "auto":
-        return "opencv" if opencv_has_hand_eye() else "numpy"
-    if backend == "opencv" and not opencv_has_hand_eye():
-        raise CalibrationError(
-            f"cv2 {cv2.__version__} does not expose calibrateHandEye (opencv/opencv#29565); use backend='numpy'"
-        )
-    if backend not in ("opencv", "numpy"):
-        raise CalibrationError(f"unknown hand-eye backend {backend!r}; use 'auto', 'opencv' or 'numpy'")
-    return backend
-
-
-def relative_motions(Hg: FloatArray, Hc: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """All pairs i < j: ``A = inv(Hg[j]) @ Hg[i]`` (tool motion) and ``B = Hc[j] @ inv(Hc[i])``
-    (camera motion), each (M, 4, 4) with M = N (N - 1) / 2, so that ``A @ X = X @ B``."""
-    i_idx, j_idx = np.triu_indices(Hg.shape[0], k=1)
-    Hg_inv = np.stack([invert_X(h) for h in Hg])
-    Hc_inv = np.stack([invert_X(h) for h in Hc])
-    A = Hg_inv[j_idx] @ Hg[i_idx]
-    B = Hc[j_idx] @ Hc_inv[i_idx]
-    return A, B
-
-
-def _stack(poses: Sequence[ArrayLike] | FloatArray, name: str) -> FloatArray:
-    arr = np.asarray([np.asarray(p, dtype=np.float64) for p in poses], dtype=np.float64)
-    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
-        raise CalibrationError(f"{name}: expected a sequence of (4, 4) poses, got shape {arr.shape}")
-    return arr
+    return _NUMPY_METHODS[LinearMethod(method)](A, B)
 
 
 def _skew(v: FloatArray) -> FloatArray:
