@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cell.commands.calibrate",
     "cell.commands.run",
     "cell.commands.serve",
+    "cell.commands.schema",
 )
 
 EXIT_OK = 0

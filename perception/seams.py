@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from perception.capture import write_json
 from perception.errors import BadCapture
+from perception.seams_schema import FORMAT_VERSION, UNITS
 from perception.transforms import (
     X_from_xyzquat,
     invert_X,
@@ -89,6 +90,7 @@ class DetectionResult:
 
 
 def seams_to_json(result: DetectionResult) -> dict[str, Any]:
+    """The seams.json document of ``result`` (schema: ``weldcell schema seams``, :mod:`perception.seams_schema`)."""
     seams = []
     for s in result.seams:
         seams.append(
@@ -105,6 +107,8 @@ def seams_to_json(result: DetectionResult) -> dict[str, Any]:
             }
         )
     return {
+        "format_version": FORMAT_VERSION,
+        "units": UNITS,
         "frame": result.frame,
         "seams": seams,
         "points": dict(result.point_counts),
@@ -150,6 +154,11 @@ def read_seams_json(path: str | os.PathLike[str]) -> SeamsFile:
         raise BadCapture(f"cannot read seams JSON: {err}", path=p) from err
     if not isinstance(obj, dict) or not isinstance(obj.get("seams"), list):
         raise BadCapture("expected an object with a 'seams' list", path=p)
+    version = str(obj.get("format_version", "1.0"))  # files from before the field are 1.0, the same layout
+    if version.split(".")[0] != FORMAT_VERSION.split(".")[0]:
+        raise BadCapture(f"format_version {version!r} is not 1.x; this weldcell reads seams.json 1.x", path=p)
+    if obj.get("units", UNITS) != UNITS:
+        raise BadCapture(f"units {obj.get('units')!r}: seams.json lengths are in metres ('m')", path=p)
     frame = obj.get("frame", "camera")
     if frame not in ("camera", "base"):
         raise BadCapture(f"'frame' must be 'camera' or 'base', got {frame!r}", path=p)
