@@ -27,6 +27,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cell.commands.run",
     "cell.commands.serve",
     "cell.commands.schema",
+    "cell.commands.export",
 )
 
 EXIT_OK = 0
