@@ -18,8 +18,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="detect the weld seams of a capture folder (or a .ply/.pcd cloud: fine stage only)",
         description="Coarse-to-fine multi-seam detection. Exit codes: 0 seams found, 2 bad capture, 3 no seam.",
     )
-    p.add_argument("capture", help="capture folder, or a .ply/.pcd/.npy point cloud")
+    p.add_argument("capture", nargs="+", help="capture folder(s), or .ply/.pcd/.npy point cloud(s)")
     _add_detect_options(p)
+    b = p.add_argument_group(
+        "batch", "several captures (or --out-dir): one process pool, one seams.json per capture in --out-dir"
+    )
+    b.add_argument("--out-dir", help="batch: write <capture name>.seams.json here, and batch.json (a summary)")
+    b.add_argument("--jobs", type=int, default=None, help="batch: worker processes (default: the CPU count)")
+    b.add_argument("--ray", metavar="ADDRESS", help="batch: run on a Ray cluster ('auto', 'ray://host:10001'; "
+                   "'local' starts one here); needs pip install 'weldcell[ray]'")  # fmt: skip
     p.set_defaults(func=run_detect)
 
     d = sub.add_parser(
@@ -99,6 +106,15 @@ def make_segmenter(args: argparse.Namespace) -> Any:
 
 
 def run_detect(args: argparse.Namespace) -> int:
+    if len(args.capture) > 1 or args.out_dir or args.jobs is not None or args.ray:
+        from cell.commands.detect_batch import run_batch
+
+        return run_batch(args)
+    args.capture = args.capture[0]
+    return detect_one(args)
+
+
+def detect_one(args: argparse.Namespace) -> int:
     from perception.capture import load_capture, read_point_cloud
     from perception.detect import detect, detect_cloud
     from perception.seams import seams_to_json, write_seams_json
