@@ -9,7 +9,20 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "ribs"
+SAMPLE_NAME = "ribs"
+
+
+def sample_capture_dir() -> Path:
+    """The bundled sample capture, shipped in the wheel as package data of ``cell`` (samples/ribs in a checkout
+    links to it)."""
+    from importlib.resources import files
+
+    sample = files("cell").joinpath("samples", SAMPLE_NAME)
+    if not isinstance(sample, Path) or not (sample / "camera.json").is_file():
+        from perception.errors import BadCapture
+
+        raise BadCapture(f"the bundled sample capture is missing from this installation ({sample})")
+    return sample
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -202,11 +215,12 @@ def run_demo(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    capture = load_capture(SAMPLE)
+    sample = sample_capture_dir()
+    capture = load_capture(sample)
     result = detect(capture, DetectParams())
     write_seams_json(result, out / "seams.json")
     write_png(str(out / "overlay.png"), draw_overlay(capture, result))
-    print_table(result, title=f"bundled sample {SAMPLE.name}")
+    print_table(result, title=f"bundled sample {sample.name}")
     if capture.ground_truth:
         from perception.transforms import invert_X, transform_points
 
