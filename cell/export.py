@@ -32,10 +32,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cell.errors import ConfigError
-from cell.planning import CellGeometry, Reach, WeldParams, WeldPath, plan_weld_path, world_seams
+from cell.planning import CellGeometry, Reach, WeldParams, WeldPath, X_world_base, plan_weld_path, world_seams
 from perception.errors import BadCapture
 from perception.seams import Frame, Seam, read_seams_json
-from perception.transforms import xyzquat_from_X
+from perception.transforms import invert_X, xyzquat_from_X
 
 FloatArray = NDArray[np.float64]
 
@@ -143,12 +143,17 @@ def plan_for_export(
     )
 
 
-def route_poses(data: SeamsForExport, weld_path: WeldPath | None) -> FloatArray:
-    """(M, 4, 4) poses of the whole route in the seams' frame: the planned TCP waypoints of ``weld_path`` (base
-    frame, at each pass's track position) or, without a path, every seam's torch poses in file order."""
+def route_poses(data: SeamsForExport, weld_path: WeldPath | None, *, track_position_m: float = 0.0) -> FloatArray:
+    """(M, 4, 4) poses of the whole route in the seams' frame: the planned TCP waypoints of ``weld_path`` or,
+    without a path, every seam's torch poses in file order.
+
+    The seams' base frame is the base with the carriage where it was at the capture (``track_position_m``); a
+    pass planned at another track position is brought into that same frame, so the route is one rigid picture.
+    """
     if weld_path is None:
         return np.concatenate([s.poses for s in data.seams])
-    return np.stack([w.X_base_tcp for _i, _p, w in weld_path.waypoints()])
+    X_base0_world = invert_X(X_world_base(track_position_m, weld_path.track_axis_base))
+    return np.stack([X_base0_world @ weld_path.X_world_tcp(p, w) for _i, p, w in weld_path.waypoints()])
 
 
 # ================================================================================================ programs

@@ -112,7 +112,7 @@ def _rosbag(args: argparse.Namespace, data: Any) -> dict[str, Any]:
     from cell.export import DEFAULT_FRAME_ID, route_poses, write_rosbag2
 
     weld_path = _plan(args, data) if data.frame == "base" else None
-    route = route_poses(data, weld_path)
+    route = route_poses(data, weld_path, track_position_m=args.track_position_m)
     frame_id = args.frame_id or (DEFAULT_FRAME_ID if data.frame == "base" else "camera")
     stamp_ns = int(Path(args.seams_json).stat().st_mtime * 1e9)  # the detection's time, as near as the file says
     out = write_rosbag2(args.out, data, route, frame_id=frame_id, storage=args.storage, stamp_ns=stamp_ns)

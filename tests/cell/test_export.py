@@ -176,3 +176,44 @@ def test_the_html_view_is_self_contained_and_draws_every_segment(demo_seams, tmp
     n_segments = sum(len(s["points"]) - 1 for s in doc["seams"])
     assert counts["strokes"] == n_segments + 3 * n_points  # seam segments and three torch axes per path point
     assert counts["dots"] > 5000 + 1  # the crop's points and the background
+
+
+def _seam_along_x(seam_id: int, y: float) -> dict:
+    xs = np.linspace(0.30, 0.40, 21)
+    pts = np.column_stack([xs, np.full_like(xs, y), np.zeros_like(xs)])
+    quat = [1.0, 0.0, 0.0, 0.0]  # 180 deg about x: torch z points down into the joint, x along +x (travel)
+    poses = [[*p, *quat] for p in pts.tolist()]
+    return {"id": seam_id, "kind": "linear", "points": pts.tolist(), "poses": poses, "length_m": 0.1, "confidence": 1}
+
+
+def test_a_path_across_track_positions_gives_one_program_per_position_and_one_rigid_route(tmp_path):
+    from cell.export import write_programs
+    from cell.planning import CellGeometry, Reach, TrackAxis
+
+    doc = {
+        "format_version": "1.1",
+        "units": "m",
+        "frame": "base",
+        "seams": [_seam_along_x(0, 0.0), _seam_along_x(1, 1.5)],
+    }
+    path = tmp_path / "seams.json"
+    path.write_text(json.dumps(doc))
+    data = load_seams(path)
+    geometry = CellGeometry(Reach(radius_m=0.6, preferred_m=0.35), TrackAxis(0.0, 2.5, np.array([0.0, 1.0, 0.0])))
+    weld_path = plan_for_export(data, params=WeldParams(), geometry=geometry)
+    assert len(weld_path.track_positions_m) == 2  # the second seam is out of reach until the carriage moves
+    written = write_programs(tmp_path / "w.script", weld_path, language="urscript", name="two")
+    assert [p.name for p in written] == ["w_1.script", "w_2.script"]
+    assert [p.read_text().splitlines()[0] for p in written] == ["def TWO_1():", "def TWO_2():"]
+    # the route in the seams' frame (the base at the capture's track position): each arc-on and arc-off TCP sits
+    # stickout above a seam end, whatever track position its pass was planned at
+    route = route_poses(data, weld_path)
+    ends = {(round(x, 6), round(y, 6)) for s in doc["seams"] for x, y, _z in (s["points"][0], s["points"][-1])}
+    k = 0
+    for p in weld_path.passes:
+        arc_on, arc_off = route[k + 1], route[k + len(p.waypoints) - 2]
+        for X in (arc_on, arc_off):
+            assert (round(X[0, 3], 6), round(X[1, 3], 6)) in ends
+            assert X[2, 3] == pytest.approx(0.015, abs=1e-9)  # torch z points down: the tip is 15 mm above
+        k += len(p.waypoints)
+    assert k == len(route)
