@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -33,9 +34,13 @@ def test_the_wheel_takes_every_file_of_the_sample_and_the_checkout_path_still_wo
 def test_weldcell_demo_runs_from_a_built_wheel(tmp_path):
     # the wheel as pip builds it (isolated build, the pinned setuptools), unpacked and imported instead of the
     # checkout: the demo must find its sample through importlib.resources inside the installed package
-    wheels, target = tmp_path / "wheels", tmp_path / "site"
+    wheels, target, source = tmp_path / "wheels", tmp_path / "site", tmp_path / "source"
+    # from a copy: setuptools leaves build/ and *.egg-info in the source tree, and a stale build/lib would
+    # go into the next wheel
+    junk = (".venv", ".git", "build", "out", "bench-out", "*.egg-info", "__pycache__", ".mypy_cache", ".ruff_cache")
+    shutil.copytree(REPO, source, ignore=shutil.ignore_patterns(*junk))
     pip = [sys.executable, "-m", "pip", "-qq"]
-    subprocess.run([*pip, "wheel", "--no-deps", "-w", str(wheels), str(REPO)], check=True, timeout=300)
+    subprocess.run([*pip, "wheel", "--no-deps", "-w", str(wheels), str(source)], check=True, timeout=300)
     (wheel,) = wheels.glob("weldcell-*.whl")
     subprocess.run([*pip, "install", "--no-deps", "--target", str(target), str(wheel)], check=True, timeout=300)
     code = (
