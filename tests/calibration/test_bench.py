@@ -69,3 +69,21 @@ def test_cli_prints_the_json_report(capsys):
     assert report == run_bench(BenchConfig(pose_counts=(8,), trials=1, seed=2))
     with pytest.raises(SystemExit):
         parser.parse_args(["bench", "calibration", "--poses", "2"])
+
+
+def test_every_closed_form_result_of_the_bench_comes_from_cv2_calibrate_hand_eye(monkeypatch):
+    import cv2
+
+    from calibration.axxb import LinearMethod
+
+    calls: list[int] = []
+    real = cv2.calibrateHandEye
+
+    def counting(*args, **kwargs):
+        calls.append(kwargs["method"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(cv2, "calibrateHandEye", counting)
+    trial = run_trial(8, 0, config=BenchConfig(seed=1))
+    assert sorted(calls) == sorted(m.opencv_flag for m in LinearMethod)  # each of the five methods, once
+    assert all(np.all(np.isfinite(e)) for e in trial.errors.values())
