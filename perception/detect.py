@@ -698,6 +698,7 @@ def _to_seams(geoms: list[SeamGeometry], params: DetectParams, frame_X: FloatArr
                 length_m=float(s_new[-1]),
                 confidence=conf,
                 surfaces=(min(g.labels), max(g.labels)),
+                joint=g.joint,
             )
         )
     frame: Literal["camera", "base"] = "camera"

@@ -50,6 +50,7 @@ class Seam:
     confidence: float
     surfaces: tuple[int, int] = (-1, -1)
     frame: Frame = "camera"
+    joint: str = "fillet"  # fillet, inside_corner, lap, v_groove, butt
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=np.float64)
@@ -74,6 +75,7 @@ class Seam:
             confidence=self.confidence,
             surfaces=self.surfaces,
             frame=frame,
+            joint=self.joint,
         )
 
 
@@ -97,6 +99,7 @@ def seams_to_json(result: DetectionResult) -> dict[str, Any]:
             {
                 "id": s.id,
                 "kind": s.kind,
+                "joint": s.joint,
                 "points": np.round(s.points, 7).tolist(),
                 "poses": [np.round(xyzquat_from_X(X), 7).tolist() for X in s.poses],
                 "length_m": round(float(s.length_m), 6),
