@@ -889,6 +889,7 @@ def detect_surfaces(
     from perception.fine.gaps import gap_seams, inner_gap_seams
     from perception.fine.noise import estimate_noise, local_planes
     from perception.fine.refine import refine_seams
+    from perception.fine.steps import step_seams
     from perception.fine.support import find_support
     from perception.fine.surfaces import segment_surfaces
     from perception.fine.types import NoiseModel
@@ -934,6 +935,11 @@ def detect_surfaces(
     log.counts["cropped"] = used
     with log.step("inner_gaps"):
         curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=support)
+    with log.step("steps"):
+        steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=support)
+        # a step places the lap's edge from both plates and the edge face's own points; a fold on the narrow
+        # edge face, fitted on a few pixels, is the weaker estimate of the same seam
+        curves = [c for c in curves if not _duplicates(c, steps)] + steps
     with log.step("view"):
         curves = clip_to_view(curves)
     t_fine = time.perf_counter() - t0 - t_coarse
@@ -967,3 +973,11 @@ def detect_surfaces(
         info=info,
         artifacts={"surfaces": surf},
     )
+
+
+def _duplicates(seam: Any, others: list[Any], *, within_m: float = 0.002) -> bool:
+    """Whether ``seam`` lies along one of ``others`` (median distance within ``within_m``)."""
+    from perception.evaluate import point_to_polyline_distance
+
+    probe = seam.points[0] + np.linspace(0.0, 1.0, 11)[:, None] * (seam.points[-1] - seam.points[0])
+    return any(float(np.median(point_to_polyline_distance(probe, o.points))) < within_m for o in others)

@@ -8,6 +8,7 @@
       -> folds.fold_seams            concave folds: plane x plane lines, plane x cylinder rings, clipped to
                                      where both surfaces have support; open roots (V-groove gaps)
       -> gaps.gap_seams              butt gaps: coplanar surfaces whose facing boundaries run parallel
+      -> steps.step_seams            laps and steps: an upper plate's edge dropped onto the lower plate
       -> refine.refine_seams         both surfaces refitted on full-resolution points near the seam
       -> visibility.clip_to_view     kept where both faces are seen at under 75 degrees, in runs >= 20 mm
 

@@ -71,8 +71,8 @@ def refine_seams(
         q = _near_points(full, intr, s.points, rp.band_m)
         used += len(q)
         A, B = surfaces.surfaces[s.surfaces[0]], surfaces.surfaces[s.surfaces[1]]
-        if s.joint == "butt":
-            out.append(s)
+        if s.joint == "butt" or (A.kind == B.kind == "plane" and abs(float(A.normal @ B.normal)) > np.cos(0.17)):
+            out.append(s)  # gaps and steps are placed at full resolution by their own steps
         elif s.kind == "linear" and A.kind == "plane" and B.kind == "plane":
             out.append(_refine_line(s, q, A, B, noise_full, rp))
         elif s.kind == "curved":

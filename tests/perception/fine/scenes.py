@@ -56,9 +56,17 @@ def butt(gap: float = 0.002) -> Scene:
     return replace(sc, seams=(*sc.seams, seam))
 
 
+def lap(*, behind: bool = False) -> Scene:
+    """A 5 mm plate overlapping a 10 mm one by 60 mm; seen towards its edge face, or from behind it."""
+    lower = hull("lower", box_corners(0.22, 0.16, 0.010))
+    upper = hull("upper", box_corners(0.22, 0.14, 0.005), y=0.08 - 0.06 + 0.07, z=0.010)
+    eye = (-0.05, 0.45, 0.30) if behind else (-0.05, -0.32, 0.30)
+    return scene_of((lower, upper), eye=eye, target=(0.0, 0.02, 0.0))
+
+
 @cache
 def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
-    sc = {"tee": tee, "pipe": pipe, "butt": butt}[name]()
+    sc = {"tee": tee, "pipe": pipe, "butt": butt, "lap": lap, "lap_behind": lambda: lap(behind=True)}[name]()
     if noise == "stereo":
         return render(sc, noise="stereo", seed=seed, sensor=WHITE_ONLY)
     return render(sc, noise="none", seed=seed)

@@ -1,0 +1,155 @@
+"""Steps and laps: an upper plate lying on a lower one, its edge face too narrow to be a surface of its own.
+
+Two parallel planes, the upper one a plate thickness (``min_step_m`` to ``max_step_m``) nearer the camera,
+meet in the image along the upper plate's edge. The edge face of a cut plate is square to it, so the seam is
+the upper plate's edge dropped onto the lower plate along its normal. At full resolution the edge is placed
+by the points on the edge face itself (between the two planes) when there are enough, else by the upper
+plate's outermost points. The seam is kept only where the edge face is seen (the camera on its outer side,
+at under 75 degrees), as for every other joint.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from perception.capture import CameraIntrinsics
+from perception.fine.runs import covered_runs
+from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
+
+
+@dataclass(frozen=True)
+class StepParams:
+    max_angle_rad: float = np.radians(3.0)
+    min_step_m: float = 0.0025
+    max_step_m: float = 0.030
+    bin_m: float = 0.002
+    min_length_m: float = 0.020
+    band_m: float = 0.012
+    max_incidence_rad: float = np.radians(75.0)
+
+
+def step_seams(
+    points: NDArray[np.floating],
+    surfaces: SurfaceSet,
+    pairs: tuple[Pair, ...],
+    noise: NoiseModel,
+    full: NDArray[np.float32],
+    intr: CameraIntrinsics,
+    noise_full: NoiseModel,
+    *,
+    support: frozenset[int],
+    params: StepParams | None = None,
+) -> list[SeamCurve]:
+    sp = params or StepParams()
+    p = np.asarray(points, dtype=np.float64)
+    lab = surfaces.labels
+    out: list[SeamCurve] = []
+    for pair in pairs:
+        A, B = surfaces.surfaces[pair.a], surfaces.surfaces[pair.b]
+        if A.kind != "plane" or B.kind != "plane" or float(A.normal @ B.normal) < np.cos(sp.max_angle_rad):
+            continue
+        ys, xs = pair.contact_px[:, 0], pair.contact_px[:, 1]
+        la = lab[ys, xs]
+        pa, pb = p[ys[la == A.label], xs[la == A.label]], p[ys[la == B.label], xs[la == B.label]]
+        if len(pa) < 10 or len(pb) < 10:
+            continue
+        # upper: the plane on the camera side of the other by a plate's thickness; the lower may be the table
+        h_ab = float(np.median(B.residual(pa)))  # A's points above B
+        if sp.min_step_m <= h_ab <= sp.max_step_m:
+            up, low, pu, pl, h = A, B, pa, pb, h_ab
+        elif sp.min_step_m <= -h_ab <= sp.max_step_m:
+            up, low, pu, pl, h = B, A, pb, pa, -h_ab
+        else:
+            continue
+        if up.label in support:
+            continue
+        n = low.normal
+        c = pu.mean(axis=0)
+        d = pu - c
+        d_in = d - np.outer(d @ n, n)
+        _, v = np.linalg.eigh(d_in.T @ d_in / len(d_in))
+        u = v[:, 2]
+        across = np.cross(n, u)
+        if float((pl.mean(axis=0) - c) @ across) < 0:
+            across = -across  # from the upper plate towards the lower one
+        # the edge face must be seen: the camera on its outer side, at under 75 degrees
+        view = -c / np.linalg.norm(c)
+        if float(view @ across) < np.cos(sp.max_incidence_rad):
+            continue
+        tu = (pu - c) @ u
+        edge = _edge_offset(full, intr, noise_full, up, low, c, u, across, h, sp,
+                            span=(float(tu.min()) - 0.01, float(tu.max()) + 0.01))  # fmt: skip
+        if edge is None:
+            continue
+        off, slope, t_lo, t_hi, n_pts = edge
+        if t_hi - t_lo < sp.min_length_m:
+            continue
+        pts = np.array([c + t * u + (off + slope * t) * across for t in (t_lo, t_hi)])
+        pts = pts - np.outer(pts @ n + low.offset, n)  # dropped onto the lower plate
+        joint = "lap" if h <= 0.014 else "fillet"
+        out.append(SeamCurve("linear", joint, pts, np.tile(low.normal, (2, 1)), np.tile(across, (2, 1)),
+                             (low.label, up.label), n_pts, max(up.rms_m, low.rms_m)))  # fmt: skip
+    return out
+
+
+def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: NoiseModel, up: Surface, low: Surface,
+                 c: FloatArray, u: FloatArray, across: FloatArray, h: float, sp: StepParams, *,
+                 span: tuple[float, float]) -> tuple[float, float, float, float, int] | None:  # fmt: skip
+    """Where the upper plate's edge face stands (offset along ``across`` from ``c``) and the stretch along
+    ``u`` over which both plates are there, from full-resolution points near the edge."""
+    from perception.fine.refine import _near_points
+
+    # a box around the contact, grown along the edge: the work image's contact decides the search band
+    seg = np.array([c + span[0] * u, c + span[1] * u])
+    q = _near_points(full, intr, seg, sp.band_m)
+    if len(q) < 30:
+        return None
+    d = q - c
+    a_off, t = d @ across, d @ u
+    near = np.abs(a_off) <= sp.band_m
+    q, a_off, t = q[near], a_off[near], t[near]
+    sig = noise.sigma_m(q[:, 2])
+    r_low = q @ low.normal + low.offset
+    r_up = q @ up.normal + up.offset
+    on_up = np.abs(r_up) <= 3.5 * sig
+    on_low = np.abs(r_low) <= 3.5 * sig
+    on_face = (r_low > 0.3 * h) & (r_low < 0.7 * h) & ~on_up
+    if on_up.sum() < 10 or on_low.sum() < 10:
+        return None
+    # along the edge: where the upper plate's points near the edge and the lower plate's beside it both are
+    edge_up = float(np.percentile(a_off[on_up], 98))
+    near_up = on_up & (a_off > edge_up - 0.004)
+    near_low = on_low & (a_off > edge_up) & (a_off < edge_up + 0.008)
+    lo, hi = float(min(t[near_up].min(), t[near_low].min())), float(max(t[near_up].max(), t[near_low].max()))
+    nb = max(1, int(np.ceil((hi - lo) / sp.bin_m)))
+
+    def cover(m: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        return np.bincount(np.clip(((t[m] - lo) / sp.bin_m).astype(int), 0, nb - 1), minlength=nb) >= 2
+
+    runs = covered_runs(cover(near_up) & cover(near_low), 4)
+    if not runs:
+        return None
+    r0, r1 = max(runs, key=lambda r: r[1] - r[0])
+    t_lo, t_hi = lo + r0 * sp.bin_m, lo + r1 * sp.bin_m
+    face = on_face & (t >= t_lo) & (t <= t_hi)
+    slope = 0.0
+    if face.sum() >= 20 and np.ptp(t[face]) > 0.5 * (t_hi - t_lo):
+        # the edge face's own points place it, and turn it: a line a_off = off + slope t through them
+        tf, af = t[face], a_off[face]
+        keep = np.ones(len(tf), bool)
+        for _ in range(3):  # mixed pixels at the edge's ends and corners sit off the face: trimmed
+            sol, *_ = np.linalg.lstsq(np.column_stack([np.ones(int(keep.sum())), tf[keep]]), af[keep], rcond=None)
+            res = af - (sol[0] + sol[1] * tf)
+            mad = 1.4826 * float(np.median(np.abs(res[keep]))) + 1e-6
+            keep = np.abs(res) <= 3.0 * mad
+            if keep.sum() < 10:
+                break
+        off, slope = float(sol[0]), float(sol[1])
+    elif face.sum() >= 10:
+        off = float(np.median(a_off[face]))
+    else:
+        off = edge_up
+    return off, slope, t_lo, t_hi, int(near_up.sum() + near_low.sum())
