@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
 from perception.fine.runs import covered_runs
-from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
+from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
 
 
 @dataclass(frozen=True)
@@ -89,7 +89,7 @@ def step_seams(
             continue
         pts = np.array([c + t * u + (off + slope * t) * across for t in (t_lo, t_hi)])
         pts = pts - np.outer(pts @ n + low.offset, n)  # dropped onto the lower plate
-        joint = "lap" if h <= 0.014 else "fillet"
+        joint: Joint = "lap" if h <= 0.014 else "fillet"
         out.append(SeamCurve("linear", joint, pts, np.tile(low.normal, (2, 1)), np.tile(across, (2, 1)),
                              (low.label, up.label), n_pts, max(up.rms_m, low.rms_m)))  # fmt: skip
     return out
