@@ -66,7 +66,12 @@ def _add_detect_options(p: argparse.ArgumentParser) -> None:
         default=None,
         help="voxel size in mm (default 3, the paper's; a sparse .ply/.pcd scan gets 1.5x its sample spacing)",
     )
-    p.add_argument("--method", choices=("refined", "paper"), default="refined", help="'paper': no sub-voxel refinement")
+    p.add_argument(
+        "--method",
+        choices=("refined", "paper", "surfaces"),
+        default="refined",
+        help="'paper': no sub-voxel refinement; 'surfaces': the fine stage on fitted surfaces (docs/zoo.md)",
+    )
     p.add_argument("--step-mm", type=float, default=5.0, help="path point spacing in mm")
     p.add_argument("--work-angle", type=float, default=0.0, help="work angle offset from the bisector, deg")
     p.add_argument("--travel-angle", type=float, default=0.0, help="travel angle, deg (positive = push)")
