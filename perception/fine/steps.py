@@ -56,7 +56,7 @@ def step_seams(
         pa, pb = p[ys[la == A.label], xs[la == A.label]], p[ys[la == B.label], xs[la == B.label]]
         if len(pa) < 10 or len(pb) < 10:
             continue
-        # upper: the plane on the camera side of the other by a plate's thickness; the lower may be the table
+        # upper: the plane on the camera side of the other by a plate's thickness
         h_ab = float(np.median(B.residual(pa)))  # A's points above B
         if sp.min_step_m <= h_ab <= sp.max_step_m:
             up, low, pu, pl, h = A, B, pa, pb, h_ab
@@ -64,8 +64,8 @@ def step_seams(
             up, low, pu, pl, h = B, A, pb, pa, -h_ab
         else:
             continue
-        if up.label in support:
-            continue
+        if up.label in support or low.label in support:
+            continue  # a plate lying on the table is not lapped onto it
         n = low.normal
         c = pu.mean(axis=0)
         d = pu - c
