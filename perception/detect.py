@@ -881,8 +881,12 @@ def detect_surfaces(
 ) -> DetectionResult:
     """Surfaces first: fitted planes and cylinders, their adjacency, and the joints between them.
 
-    Coarse stage as the paper's (prompts, segmenter, seam ROI: kept for the masks and the overlay);
-    fine stage: noise -> surfaces -> support -> adjacency -> folds + gaps -> full-resolution refinement.
+    The coarse stage is geometric here: surfaces are segmented on every ``factor``-th pixel (a quarter of
+    them at 1280x720), and only bands around the candidate seams are read at full resolution (the share
+    of points left out is ``info["removed_share"]``). Prompts and the image segmenter are not used yet
+    (``segmenter`` is accepted for the same signature as :func:`detect`); the table is told apart by
+    geometry. Steps: noise -> surfaces -> support -> adjacency -> folds, gaps -> full-resolution
+    refinement -> inner gaps, steps -> view clip.
     """
     from perception.fine.adjacency import adjacent_pairs
     from perception.fine.folds import fold_seams

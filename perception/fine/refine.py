@@ -33,7 +33,7 @@ class RefineParams:
     end_slack_m: float = 0.006  # the ends may move this far beyond the coarse ones
 
 
-def _near_points(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatArray, band_m: float) -> FloatArray:
+def near_points(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatArray, band_m: float) -> FloatArray:
     """Full-resolution points (N, 3) in the image box of ``curve`` grown by ``band_m`` at its range."""
     uv = intr.project(curve)
     z = float(np.median(curve[:, 2]))
@@ -68,7 +68,7 @@ def refine_seams(
     out: list[SeamCurve] = []
     used = 0
     for s in seams:
-        q = _near_points(full, intr, s.points, rp.band_m)
+        q = near_points(full, intr, s.points, rp.band_m)
         used += len(q)
         A, B = surfaces.surfaces[s.surfaces[0]], surfaces.surfaces[s.surfaces[1]]
         if s.joint == "butt" or (A.kind == B.kind == "plane" and abs(float(A.normal @ B.normal)) > np.cos(0.17)):

@@ -100,11 +100,11 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
                  span: tuple[float, float]) -> tuple[float, float, float, float, int] | None:  # fmt: skip
     """Where the upper plate's edge face stands (offset along ``across`` from ``c``) and the stretch along
     ``u`` over which both plates are there, from full-resolution points near the edge."""
-    from perception.fine.refine import _near_points
+    from perception.fine.refine import near_points
 
     # a box around the contact, grown along the edge: the work image's contact decides the search band
     seg = np.array([c + span[0] * u, c + span[1] * u])
-    q = _near_points(full, intr, seg, sp.band_m)
+    q = near_points(full, intr, seg, sp.band_m)
     if len(q) < 30:
         return None
     d = q - c
