@@ -776,7 +776,8 @@ def detect(
     if not geoms:
         raise NoSeamFound(
             f"{log.counts.get('candidates', 0)} junction(s) between surfaces were examined but none is a concave "
-            "seam or a narrow gap"
+            "seam or a narrow gap",
+            artifacts={"masks": coarse.masks, "roi": coarse.roi_mask},
         )
     t2 = time.perf_counter()
     seams = _to_seams(geoms, p, capture.X_base_camera)
@@ -950,7 +951,8 @@ def detect_surfaces(
     if not curves:
         raise NoSeamFound(
             f"{len(surf.surfaces)} surface(s) fitted and {len(pairs)} adjacent pair(s) examined; none meets another "
-            "in a concave fold or across a narrow gap"
+            "in a concave fold or across a narrow gap",
+            artifacts={"surfaces": surf},
         )
     geoms = [
         SeamGeometry(c.kind, c.joint, c.points, c.normals_a, c.normals_b, c.surfaces, c.surfaces, c.support, c.rms_m)

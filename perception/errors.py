@@ -39,6 +39,7 @@ class BadCapture(PerceptionError):
 class NoSeamFound(PerceptionError):
     """The capture was valid but no seam survived detection; ``reason`` says which step emptied it."""
 
-    def __init__(self, reason: str) -> None:
+    def __init__(self, reason: str, *, artifacts: dict[str, object] | None = None) -> None:
         self.reason = reason
+        self.artifacts = artifacts or {}  # what the detector saw (masks, surfaces), for an overlay of why
         super().__init__(f"no seam found: {reason}")

@@ -42,15 +42,24 @@ def draw_overlay(
     masks: SurfaceMasks | None = None,
     roi: NDArray[np.bool_] | None = None,
     truth: bool = False,
+    note: str = "",
 ) -> NDArray[np.uint8]:
-    """(H, W, 3) uint8 RGB overlay. ``truth`` also draws the ground-truth seams (thin, green)."""
+    """(H, W, 3) uint8 RGB overlay. ``truth`` also draws the ground-truth seams (thin, green); ``note`` is
+    written across the top (why no seam was found, say)."""
     import cv2
 
     img = capture.color_rgb.astype(np.float64)
     masks = masks if masks is not None else result.artifacts.get("masks")
     roi = roi if roi is not None else result.artifacts.get("roi")
+    surf = result.artifacts.get("surfaces")
+    lab = None
     if masks is not None:
         lab = masks.labels
+    elif surf is not None:  # the surfaces-first stage's fitted surfaces, at their work resolution
+        f = surf.factor
+        H, W = capture.shape
+        lab = np.repeat(np.repeat(surf.labels, f, axis=0), f, axis=1)[:H, :W]
+    if lab is not None:
         tint = PALETTE[np.where(lab >= 0, lab, 0) % len(PALETTE)]
         img = np.where((lab >= 0)[..., None], 0.55 * img + 0.45 * tint, img * 0.75)
     out = np.clip(img, 0, 255).astype(np.uint8)
@@ -88,7 +97,23 @@ def draw_overlay(
                     0.5 * scale, (255, 255, 255), 2 * scale, cv2.LINE_AA)  # fmt: skip
         cv2.putText(out, str(seam.id), (int(mid[0]) + 6, int(mid[1]) - 6), cv2.FONT_HERSHEY_SIMPLEX,
                     0.5 * scale, (0, 0, 0), scale, cv2.LINE_AA)  # fmt: skip
+    if note:
+        for k, line in enumerate(_wrap(note, max(30, capture.shape[1] // (11 * scale)))):
+            org = (8 * scale, (22 + 22 * k) * scale)
+            cv2.putText(out, line, org, cv2.FONT_HERSHEY_SIMPLEX, 0.55 * scale, (0, 0, 0), 3 * scale, cv2.LINE_AA)
+            cv2.putText(out, line, org, cv2.FONT_HERSHEY_SIMPLEX, 0.55 * scale, (255, 255, 255), scale, cv2.LINE_AA)
     return out
+
+
+def _wrap(text: str, width: int) -> list[str]:
+    lines, cur = [], ""
+    for word in text.split():
+        if cur and len(cur) + 1 + len(word) > width:
+            lines.append(cur)
+            cur = word
+        else:
+            cur = f"{cur} {word}".strip()
+    return [*lines, cur] if cur else lines
 
 
 def write_png(path: str, rgb: NDArray[np.uint8]) -> None:

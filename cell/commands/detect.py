@@ -135,6 +135,7 @@ def run_detect(args: argparse.Namespace) -> int:
 def detect_one(args: argparse.Namespace) -> int:
     from perception.capture import load_capture, read_point_cloud
     from perception.detect import detect, detect_cloud
+    from perception.errors import NoSeamFound
     from perception.seams import seams_to_json, write_seams_json
 
     params = build_params(args)
@@ -145,7 +146,18 @@ def detect_one(args: argparse.Namespace) -> int:
         result = detect_cloud(cloud, replace(params, crop=False), auto_voxel=args.voxel_mm is None)
     else:
         capture = load_capture(src)
-        result = detect(capture, params, segmenter=make_segmenter(args))
+        try:
+            result = detect(capture, params, segmenter=make_segmenter(args))
+        except NoSeamFound as err:
+            if args.overlay:
+                # an overlay of what was seen and why nothing came of it, so that a user can see why
+                from perception.overlay import draw_overlay, write_png
+                from perception.seams import DetectionResult
+
+                empty = DetectionResult("camera", (), artifacts=dict(err.artifacts))
+                write_png(args.overlay, draw_overlay(capture, empty, note=str(err)))
+                print(f"overlay    -> {args.overlay}", file=sys.stderr)
+            raise
     if args.out:
         write_seams_json(result, args.out)
     if args.overlay and capture is not None:
