@@ -106,7 +106,7 @@ def gap_seams(
 
 @dataclass(frozen=True)
 class InnerGapParams:
-    behind_m: float = 0.001  # a pixel this far behind the plate's plane (plus noise) sees through the gap
+    behind_m: float = 0.0  # a pixel this far behind the plate's plane (plus noise) sees through the gap
     close_px: int = 9  # closing that bridges the gap when filling the plate's outline (full resolution)
     min_length_m: float = 0.020
     max_width_rms_m: float = 0.0015
@@ -208,13 +208,15 @@ def inner_gap_seams(
             width = edge_r - edge_l
             if not (0.0 < width < 0.006):
                 continue
-            # a gap is empty: few pixels inside it lie on the plate (random dropouts on a face seen at a grazing
-            # angle line up as well as a gap's dots, but between them the face is there)
-            centre_band = np.abs(a_off - 0.5 * (edge_l + edge_r)) <= max(0.25 * width, 0.5 * float(
-                noise_full.spacing_m(s.z_m)))  # fmt: skip
-            band_all = strip & (np.abs(d_all @ across - 0.5 * (edge_l + edge_r)) <= max(0.25 * width, 0.5 * float(
-                noise_full.spacing_m(s.z_m))))  # fmt: skip
-            if band_all.any() and (centre_band & near).sum() > 0.3 * band_all.sum():
+            # a gap is empty: inside it, far fewer pixels lie on the plate than beside it (random dropouts on a
+            # face seen at a grazing angle line up as well as a gap's dots, but between them the face is there)
+            centre = 0.5 * (edge_l + edge_r)
+            half = max(0.25 * width, 0.5 * float(noise_full.spacing_m(s.z_m)))
+            rel = np.abs(a_off - centre)
+            along = (t_along >= lo) & (t_along <= hi)
+            dens_in = float((along & (rel <= half)).sum()) / half
+            dens_side = float((along & (rel >= 0.5 * width + 0.001) & (rel <= 0.5 * width + 0.004)).sum()) / 0.003
+            if dens_side <= 0 or dens_in > 0.5 * dens_side:
                 continue
             mid = c3 + 0.5 * (edge_l + edge_r) * across
             pts_seam = np.array([mid + lo * u, mid + hi * u])
