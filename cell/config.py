@@ -90,6 +90,8 @@ class RobotConfig(Section):
     the same process starts the simulator). ``dashboard_port``: UR dashboard server (default 29999); UR's RTDE
     and script ports are fixed by the controller. ``timeout_s``: per request; ``connect_timeout_s``: to open
     the connection. ``speed_m_s``/``accel_m_s2``: default tool motion; ``max_speed_m_s``: the cell's limit.
+    ``heartbeat_timeout_s``: the controller-side watchdog's timeout (UR: ``setWatchdog``; FANUC: what ``WC_HBEAT``
+    is installed with); ``heartbeat_register``: the FANUC's ``R[n]`` the host rewrites (docs/controller-watchdogs.md).
     """
 
     kind: RobotKind
@@ -102,6 +104,8 @@ class RobotConfig(Section):
     speed_m_s: float = Field(default=0.1, gt=0)
     max_speed_m_s: float = Field(default=0.5, gt=0)
     accel_m_s2: float = Field(default=0.5, gt=0)
+    heartbeat_timeout_s: float = Field(default=0.3, ge=0.05, le=2.0)
+    heartbeat_register: int = Field(default=90, ge=1, le=200)
 
     @model_validator(mode="after")
     def _check_kind(self) -> RobotConfig:

@@ -117,16 +117,22 @@ def start_simulators(config: CellConfig) -> Simulators:
     sims = Simulators(config)
     try:
         rc = config.robot
+        arc = config.welding.arc_output if config.welding.arc_output is not None else 0
         if rc.kind == "fake-fanuc":
-            from sim_fakes.fake_fanuc import FakeFanucController
+            from sim_fakes.fake_fanuc import FakeFanucController, HeartbeatProgram
 
-            fanuc = FakeFanucController(host=rc.host, port=rc.rmi_port).start()
+            # the fake runs the watchdog program an integrator installs (docs/controller-watchdogs.md)
+            program = HeartbeatProgram(rc.heartbeat_register, rc.heartbeat_timeout_s, (arc + 1,))
+            fanuc = FakeFanucController(host=rc.host, port=rc.rmi_port, heartbeat=program).start()
             sims._stops.append(fanuc.stop)
             sims.robot, sims.robot_address = fanuc, (rc.host, fanuc.port)
         elif rc.kind == "fake-ur":
             from sim_fakes.fake_ur import FakeURController
 
-            ur = FakeURController(rc.host, startup_timeout_s=rc.connect_timeout_s).start()
+            # the installation drives the arc output low at a program stop (docs/controller-watchdogs.md)
+            ur = FakeURController(
+                rc.host, startup_timeout_s=rc.connect_timeout_s, program_stop_outputs_low=(arc,)
+            ).start()
             sims._stops.append(ur.stop)
             sims.robot, sims.robot_address = ur, (rc.host, 30004)
         tc = config.track
@@ -278,7 +284,9 @@ def build_robot(config: CellConfig, *, address: tuple[str, int] | None = None) -
                 f"{config.where('robot.port')}: port 0 (a free port picked when the simulator starts) cannot be "
                 "reached from another process; give the fixed port 'weldcell sim up' uses"
             )
-        return FanucRobot(host, port=port, name=rc.name, timeout_s=rc.timeout_s)
+        return FanucRobot(
+            host, port=port, name=rc.name, timeout_s=rc.timeout_s, heartbeat_register=rc.heartbeat_register
+        )
     from drivers.ur import DASHBOARD_PORT, URRobot
 
     return URRobot(
@@ -287,6 +295,7 @@ def build_robot(config: CellConfig, *, address: tuple[str, int] | None = None) -
         dashboard_port=rc.dashboard_port if rc.dashboard_port is not None else DASHBOARD_PORT,
         connect_timeout_s=rc.connect_timeout_s,
         command_timeout_s=rc.timeout_s,
+        heartbeat_timeout_s=rc.heartbeat_timeout_s,
     )
 
 

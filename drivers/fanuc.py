@@ -15,6 +15,11 @@ motion) and raised as :class:`ProtectiveStop` / :class:`EmergencyStop`; both sta
 cleared and :meth:`FanucRobot.reset_faults` (FRC_Reset) is called, which the cell does only after an
 operator's acknowledgement. An unsolicited ``FRC_SystemFault`` raises :class:`SystemFault` and latches the
 same way.
+
+Host heartbeat (``heartbeat_register``, docs/controller-watchdogs.md): while connected, a task on the I/O thread
+writes a changing count (1..30000) to ``R[heartbeat_register]`` every ``heartbeat_period_s``. The integrator's
+``WC_HBEAT`` program on the controller switches the arc output off and stops the motion (user alarm, STOP.G)
+when that register stands still for its timeout: a dropped link, a hung or killed host.
 """
 
 from __future__ import annotations
@@ -113,7 +118,8 @@ class FanucRobot:
     ``host``/``port``: the controller's address and RMI connect port (from the cell config; no default host).
     ``timeout_s``: per-request timeout for commands. ``status_poll_s``: how often safety state is read during
     motion. ``n_digital_outputs``: how many of ``DO[1..]`` appear in :attr:`RobotState.digital_outputs`
-    (``index`` i of this API is the controller's ``DO[i + 1]``).
+    (``index`` i of this API is the controller's ``DO[i + 1]``). ``heartbeat_register``: ``R[n]`` rewritten every
+    ``heartbeat_period_s`` for the controller's watchdog program (None: no heartbeat).
     """
 
     def __init__(
@@ -128,6 +134,8 @@ class FanucRobot:
         timeout_s: float = 2.0,
         status_poll_s: float = 0.05,
         n_digital_outputs: int = 8,
+        heartbeat_register: int | None = None,
+        heartbeat_period_s: float = 0.05,
     ) -> None:
         if timeout_s <= 0 or status_poll_s <= 0:
             raise ValueError(f"timeout_s and status_poll_s must be > 0, got {timeout_s}, {status_poll_s}")
@@ -140,6 +148,11 @@ class FanucRobot:
         self.timeout_s = timeout_s
         self.status_poll_s = status_poll_s
         self.n_digital_outputs = n_digital_outputs
+        if heartbeat_register is not None and heartbeat_register < 1:
+            raise ValueError(f"heartbeat_register is R[n] with n >= 1, got {heartbeat_register}")
+        self.heartbeat_register = heartbeat_register
+        self.heartbeat_period_s = heartbeat_period_s
+        self._heartbeat: concurrent.futures.Future[None] | None = None
         self._io: _LoopThread | None = None
         self._client: RMIClient | None = None
         self._lifecycle_lock = threading.Lock()
@@ -163,13 +176,32 @@ class FanucRobot:
                 self._io = None
                 raise
             self._client = client
+            if self._heartbeat is not None:
+                self._heartbeat.cancel()
+                self._heartbeat = None
+            if self.heartbeat_register is not None:
+                self._heartbeat = io.submit(self._beat(client, self.heartbeat_register))
             logger.info("%s: connected to FANUC RMI at %s:%d", self.name, self.host, self.port)
+
+    async def _beat(self, client: RMIClient, register: int) -> None:
+        """R[register] = 1, 2, ... 30000, 1, ... every heartbeat_period_s while the session lives."""
+        count = 0
+        while client.connected:
+            count = count % 30000 + 1
+            try:
+                await client.write_numeric_register(register, count, timeout_s=self.timeout_s)
+            except DriverError as err:  # the controller's watchdog acts on the silence; say so once per failure
+                logger.warning("%s: heartbeat R[%d] not written: %s", self.name, register, err)
+            await asyncio.sleep(self.heartbeat_period_s)
 
     def disconnect(self) -> None:
         """Say FRC_Disconnect (the controller aborts RMI_MOVE), close, stop the I/O thread. Safe twice."""
         with self._lifecycle_lock:
             client, self._client = self._client, None
             io, self._io = self._io, None
+            if self._heartbeat is not None:
+                self._heartbeat.cancel()
+                self._heartbeat = None
             if io is None:
                 return
             if client is not None:

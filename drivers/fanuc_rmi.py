@@ -593,6 +593,11 @@ class RMIClient:
         fields = {"PortNumber": int(port_number), "PortValue": "ON" if value else "OFF"}
         await self.command("FRC_WriteDOUT", fields, timeout_s=timeout_s)
 
+    async def write_numeric_register(self, number: int, value: int, *, timeout_s: float | None = None) -> None:
+        """FRC_WriteNumericRegister: ``R[number] = value``."""
+        fields = {"RegisterNumber": int(number), "RegisterValue": int(value)}
+        await self.command("FRC_WriteNumericRegister", fields, timeout_s=timeout_s)
+
     async def read_dout(self, port_number: int, *, timeout_s: float | None = None) -> bool:
         """FRC_ReadIOPort with PortType "DO": the state of ``DO[port_number]``."""
         reply = await self.command(

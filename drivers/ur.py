@@ -28,6 +28,14 @@ emergency stop (once its button is released) the arm is powered off: ``power on`
 ``brake release``, wait for RUNNING; after a protective stop ``unlock protective stop`` (a CB3 refuses it for 5 s
 after the stop: the driver asks again until it is accepted or its timeout passes). A safety stop ends the ur-rtde
 control script, so it is uploaded again before the arm counts as ready.
+
+The controller-side watchdog (``heartbeat_timeout_s``, docs/controller-watchdogs.md): every control script this
+driver starts is told ``setWatchdog(1 / heartbeat_timeout_s)``, so the controller stops the program (the arm
+decelerates to a stop) when the host's heartbeat (``kickWatchdog``, sent by a thread of the worker process) has
+been missing for longer than that: a dropped link, a hung or killed host process. The installation's I/O setup
+drives the arc output low at every program stop. Uploading a path (``stream_path``) restarts the program, so the
+arm is held with the speed slider at 0 while the path's script starts, its watchdog is armed and the outputs the
+restart switched off are switched on again before the arm moves.
 """
 
 from __future__ import annotations
@@ -116,6 +124,7 @@ RECEIVE_VARIABLES = (
     "safety_status_bits",
     "runtime_state",
     "actual_digital_output_bits",
+    "target_speed_fraction",
 )
 
 _MOVING_SPEED_M_S = 1e-4
@@ -153,21 +162,53 @@ def _ur_pose(X_base_tool: FloatArray) -> list[float]:
 
 
 class _Worker:
-    """Owns the ur-rtde interfaces inside the worker process; each ``op_*`` answers one request."""
+    """Owns the ur-rtde interfaces inside the worker process; each ``op_*`` answers one request.
 
-    def __init__(self, host: str, dashboard_port: int) -> None:
+    ``heartbeat_timeout_s`` (None: no watchdog): the control script is told (``setWatchdog``) to stop its program
+    when the host's heartbeat is missing for that long, and a thread of this process sends the heartbeat
+    (``kickWatchdog``) six times per timeout. Every ur-rtde call, the heartbeat's included, holds :attr:`lock`: the
+    control interface's register handshake must not interleave.
+    """
+
+    def __init__(self, host: str, dashboard_port: int, heartbeat_timeout_s: float | None) -> None:
         self.host = host
         self.dashboard_port = dashboard_port
+        self.heartbeat_timeout_s = heartbeat_timeout_s
         self.receive: Any = None
         self.control: Any = None
         self.io: Any = None
+        self.lock = threading.Lock()
+        self._heartbeat: threading.Thread | None = None
 
     def op_connect(self) -> dict[str, Any]:
         rtde_receive, rtde_control, rtde_io, _ = _import_ur_rtde()
         self.receive = rtde_receive.RTDEReceiveInterface(self.host, -1.0, list(RECEIVE_VARIABLES))
         self.control = rtde_control.RTDEControlInterface(self.host)
         self.io = rtde_io.RTDEIOInterface(self.host)
+        if self.control.isProgramRunning():  # not after a safety stop: reset_faults uploads and arms it then
+            self._arm_watchdog()
+        if self.heartbeat_timeout_s is not None and self._heartbeat is None:
+            self._heartbeat = threading.Thread(target=self._beat, name="ur-heartbeat", daemon=True)
+            self._heartbeat.start()
         return self.op_state()
+
+    def _arm_watchdog(self) -> None:
+        """Tell the (new) control script to stop its program when the heartbeat stops: a program start removes
+        the watchdogs of the one before (URScript ``rtde_set_watchdog``), so this follows every upload."""
+        if self.heartbeat_timeout_s is None:
+            return
+        # a script that stopped meanwhile (a refused target) is reported by the motion's own checks
+        if not self.control.setWatchdog(1.0 / self.heartbeat_timeout_s) and self.control.isProgramRunning():
+            raise ConnectionLost("the running control script did not accept setWatchdog")
+
+    def _beat(self) -> None:
+        period = (self.heartbeat_timeout_s or 1.0) / 6.0
+        while True:
+            time.sleep(period)
+            with self.lock:
+                control = self.control
+                if control is not None and control.isConnected() and control.isProgramRunning():
+                    control.kickWatchdog()
 
     def op_state(self) -> dict[str, Any]:
         r, c = self.receive, self.control
@@ -193,13 +234,43 @@ class _Worker:
         return bool(self.control.moveL(pose, speed, accel, True))
 
     def op_move_path(self, path: list[list[float]]) -> bool:
-        return bool(self.control.moveL(path, True))
+        """ur-rtde uploads a new control script carrying the path, and a program stop drives the outputs that the
+        installation sets low at a program stop (the arc) low. So: hold the arm with the speed slider at 0 while
+        the new script starts the path, arm the new script's watchdog, switch back on what the upload switched
+        off, then let the arm go."""
+        bits_before = int(self.receive.getActualDigitalOutputBits())
+        self.io.setSpeedSlider(0.0)
+        try:
+            deadline = time.monotonic() + 1.0
+            while self.receive.getTargetSpeedFraction() > 0.0:  # held before the program restarts
+                if time.monotonic() > deadline:
+                    raise ConnectionLost("the speed slider did not read back 0 before the path upload")
+                time.sleep(0.004)
+            accepted = bool(self.control.moveL(path, True))
+            if accepted:
+                self._arm_watchdog()
+                time.sleep(0.02)  # two controller cycles: the receive stream shows what the program stop did
+                dropped = bits_before & ~int(self.receive.getActualDigitalOutputBits())
+                for index in range(8):
+                    if dropped >> index & 1:
+                        self.io.setStandardDigitalOut(index, True)
+                deadline = time.monotonic() + 1.0
+                while dropped & ~int(self.receive.getActualDigitalOutputBits()):
+                    if time.monotonic() > deadline:
+                        raise ConnectionLost(f"outputs {dropped:#x} did not read back on after the path upload")
+                    time.sleep(0.004)
+        finally:
+            self.io.setSpeedSlider(1.0)
+        return accepted
 
     def op_stop(self, decel: float) -> None:
         self.control.stopL(decel, False)
 
     def op_reupload(self) -> bool:
-        return bool(self.control.reuploadScript())
+        ok = bool(self.control.reuploadScript())
+        if ok:
+            self._arm_watchdog()
+        return ok
 
     def op_set_digital_output(self, index: int, value: bool) -> bool:
         return bool(self.io.setStandardDigitalOut(index, value))
@@ -221,18 +292,22 @@ class _Worker:
             control.stopScript()
 
 
-def _worker_main(conn: Connection, host: str, dashboard_port: int) -> None:
-    """Entry point of the worker process: answer requests until told to close or the driver goes away."""
+def _worker_main(conn: Connection, host: str, dashboard_port: int, heartbeat_timeout_s: float | None) -> None:
+    """Entry point of the worker process: answer requests until told to close or the driver goes away.
+
+    When the driver's process dies (even by SIGKILL) the pipe ends, this process exits and the heartbeat stops with
+    it: the controller's watchdog then stops the program (arm stopped, arc output low)."""
     # Ctrl-C reaches the whole process group; the driver handles it (and stops the arm through this worker)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    worker = _Worker(host, dashboard_port)
+    worker = _Worker(host, dashboard_port, heartbeat_timeout_s)
     while True:
         try:
             op, args = conn.recv()
         except (EOFError, OSError):
             os._exit(0)
         try:
-            result = getattr(worker, f"op_{op}")(*args)
+            with worker.lock:
+                result = getattr(worker, f"op_{op}")(*args)
             conn.send(("ok", result))
         except Exception as err:
             conn.send(("error", type(err).__name__, str(err)))
@@ -290,7 +365,9 @@ class URRobot:
     ``connect_timeout_s``: bound on :meth:`connect` (ur-rtde waits up to 5 s for its control script to start).
     ``command_timeout_s``: bound on every other request to the controller. ``stale_after_s``: the RTDE stream
     counts as lost (:class:`ConnectionLost`, as the Robot protocol asks of ``state()``) when its timestamp has not
-    moved for this long.
+    moved for this long. ``heartbeat_timeout_s``: the controller-side watchdog (None: off): the control script stops
+    its program (the arm stops; the installation drives the arc output low) when this driver's heartbeat has been
+    missing for this long (docs/controller-watchdogs.md).
     ``stop_decel_m_s2``: tool deceleration of :meth:`stop`. ``arrive_tol_m`` / ``arrive_tol_rad``: how close a
     finished motion must end to its target before it counts as arrived.
     """
@@ -304,7 +381,8 @@ class URRobot:
         dashboard_port: int = DASHBOARD_PORT,
         connect_timeout_s: float = 15.0,
         command_timeout_s: float = 5.0,
-        stale_after_s: float = 1.0,
+        stale_after_s: float = 0.5,
+        heartbeat_timeout_s: float | None = 0.3,
         stop_decel_m_s2: float = 2.0,
         arrive_tol_m: float = 5e-4,
         arrive_tol_rad: float = math.radians(0.5),
@@ -314,6 +392,8 @@ class URRobot:
             raise ValueError("URRobot needs the controller's host address, got an empty string")
         if rtde_port != RTDE_PORT:
             raise ValueError(f"ur-rtde 1.6 connects RTDE to port {RTDE_PORT} only; got rtde_port={rtde_port}")
+        if heartbeat_timeout_s is not None and not 0.05 <= heartbeat_timeout_s <= 5.0:
+            raise ValueError(f"heartbeat_timeout_s must be 0.05..5 s (or None), got {heartbeat_timeout_s}")
         self.name = name
         self.host = host
         self.rtde_port = rtde_port
@@ -321,6 +401,7 @@ class URRobot:
         self.connect_timeout_s = connect_timeout_s
         self.command_timeout_s = command_timeout_s
         self.stale_after_s = stale_after_s
+        self.heartbeat_timeout_s = heartbeat_timeout_s
         self.stop_decel_m_s2 = stop_decel_m_s2
         self.arrive_tol_m = arrive_tol_m
         self.arrive_tol_rad = arrive_tol_rad
@@ -345,7 +426,7 @@ class URRobot:
             parent, child = ctx.Pipe()
             proc = ctx.Process(
                 target=_worker_main,
-                args=(child, self.host, self.dashboard_port),
+                args=(child, self.host, self.dashboard_port, self.heartbeat_timeout_s),
                 name=f"ur-rtde-{self.name}-{self.host}",
                 daemon=True,
             )

@@ -14,6 +14,14 @@ NextSequenceID...) plus two that a real controller does not send: ``"EmergencySt
 Units are the controller's: mm, degrees (W, P, R fixed-axis x-y-z, as in ``perception.transforms``), mm/s.
 Digital outputs are ``DO[1..N_DOUT]``, read back with ``FRC_ReadIOPort`` ``PortType "DO"``.
 
+Host heartbeat (what a real controller does with the watchdog program of docs/controller-watchdogs.md, when
+``heartbeat`` is given): the program ``WC_HBEAT`` runs as a background task and watches the numeric register
+``R[register]`` that the host rewrites (``FRC_WriteNumericRegister``) with a changing count. Once the host has
+written a non-zero value, a register that has not changed for ``timeout_s`` switches the arc output(s) ``DO[..]``
+OFF, raises the user alarm ``UALM[1]`` (severity STOP.G: motion stops where it is, the RMI program pauses, until
+FRC_Reset) and writes 0 to the register (disarmed until the host writes again). ``events()`` records each trip
+with the fake's clock.
+
 Usage::
 
     with FakeFanucController() as fake:        # binds 127.0.0.1 on a free port
@@ -54,6 +62,19 @@ _TERMINATOR = b"\r\n"
 _POSITION_KEYS = ("X", "Y", "Z", "W", "P", "R")
 DEFAULT_START_XYZWPR_MM_DEG = (500.0, 0.0, 400.0, 180.0, 0.0, 0.0)
 """Tool pointing down (tool z along base -z) 0.5 m in front of the base, 0.4 m up: reachable, no faults."""
+
+
+@dataclass(frozen=True)
+class HeartbeatProgram:
+    """The integrator's ``WC_HBEAT`` watchdog as installed on the controller: ``register`` (``R[n]``) is the host's
+    heartbeat, ``timeout_s`` how long it may stand still, ``arc_ports`` the ``DO[..]`` switched OFF on a trip."""
+
+    register: int = 90
+    timeout_s: float = 0.3
+    arc_ports: tuple[int, ...] = (1,)
+
+
+N_REGISTERS = 200
 
 
 @dataclass(frozen=True)
@@ -130,6 +151,7 @@ class FakeFanucController(LoopThreadFake):
         max_speed_mm_s: float = 2000.0,
         max_rotation_speed_deg_s: float = 180.0,
         reach_mm: float = 1800.0,
+        heartbeat: HeartbeatProgram | None = None,
     ) -> None:
         if host != "localhost" and not ipaddress.ip_address(host).is_loopback:
             raise ValueError(f"the fake FANUC controller binds loopback only, got host={host!r}")
@@ -142,6 +164,16 @@ class FakeFanucController(LoopThreadFake):
         self._max_speed_mm_s = max_speed_mm_s
         self._max_rotation_speed_deg_s = max_rotation_speed_deg_s
         self._reach_mm = reach_mm
+        if heartbeat is not None and not (
+            1 <= heartbeat.register <= N_REGISTERS and all(1 <= p <= N_DOUT for p in heartbeat.arc_ports)
+        ):
+            raise ValueError(f"heartbeat program: R[1..{N_REGISTERS}] and DO[1..{N_DOUT}] only, got {heartbeat}")
+        self._heartbeat = heartbeat
+        self._registers: dict[int, float] = {}
+        self._hb_seen: float = 0.0
+        self._hb_seen_at = 0.0
+        self._alarm: str | None = None  # a user alarm (UALM) latched until FRC_Reset
+        self._events: list[dict[str, Any]] = []
 
         # Controller state, touched only on the fake's event loop.
         self._p_mm = np.asarray(start_xyzwpr_mm_deg[:3], dtype=np.float64)
@@ -240,9 +272,25 @@ class FakeFanucController(LoopThreadFake):
     def in_flight(self) -> int:
         return self._call(lambda: len(self._queue))
 
+    def events(self) -> list[dict[str, Any]]:
+        """Controller-side happenings with the fake's clock ``t`` (s): ``heartbeat_lost`` trips, digital output
+        writes (``dout``, with the ``cause`` for the watchdog's), faults injected."""
+        return self._call(lambda: list(self._events))
+
+    def now_s(self) -> float:
+        """The fake's clock (seconds since it was created), the clock of :meth:`events`."""
+        return time.monotonic() - self._t0
+
+    def register(self, number: int) -> float:
+        return self._call(lambda: self._registers.get(number, 0.0))
+
+    def _event(self, kind: str, **data: Any) -> None:
+        self._events.append({"kind": kind, "t": round(time.monotonic() - self._t0, 4), **data})
+
     # ================================================================================== faults
     def _apply_fault(self, fault: str, params: dict[str, Any]) -> None:
         logger.info("fake FANUC: inject %s %s", fault, params)
+        self._event("fault", fault=fault)
         if fault == "drop_connection":
             self._dropped = True
             self._session = None
@@ -407,10 +455,12 @@ class FakeFanucController(LoopThreadFake):
             "FRC_WriteDOUT": self._cmd_write_dout,
             "FRC_ReadIOPort": self._cmd_read_io_port,
             "FRC_ReadDIN": lambda msg: {"PortNumber": msg.get("PortNumber", 0), "PortValue": 0},
+            "FRC_WriteNumericRegister": self._cmd_write_numeric_register,
+            "FRC_ReadNumericRegister": self._cmd_read_numeric_register,
         }
 
     def _cmd_initialize(self, msg: Packet) -> Packet:
-        if self._running:
+        if self._running or self._alarm is not None:
             return {"ErrorID": int(ErrorID.INVALID_CONTROLLER_STATE)}
         if not self._servo_ready:
             return {"ErrorID": int(ErrorID.SERVO_OFF)}
@@ -436,7 +486,7 @@ class FakeFanucController(LoopThreadFake):
     def _cmd_continue(self, msg: Packet) -> Packet:
         if not self._running:
             return {"ErrorID": int(ErrorID.NOT_RUNNING)}
-        if not self._servo_ready:
+        if not self._servo_ready or self._alarm is not None:
             return {"ErrorID": int(ErrorID.CANNOT_RESUME)}
         self._paused = False
         return {}
@@ -446,7 +496,47 @@ class FakeFanucController(LoopThreadFake):
             return {"ErrorID": int(ErrorID.CANNOT_RESET)}  # the cause is still there
         self._estop_latched = self._pstop_latched = False
         self._hold = False
+        self._alarm = None
         return {}
+
+    def _cmd_write_numeric_register(self, msg: Packet) -> Packet:
+        number, value = msg.get("RegisterNumber"), msg.get("RegisterValue")
+        if not isinstance(number, int) or not 1 <= number <= N_REGISTERS:
+            return {"ErrorID": int(ErrorID.INVALID_VALUE)}
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return {"ErrorID": int(ErrorID.INVALID_VALUE)}
+        self._registers[number] = float(value)
+        return {}
+
+    def _cmd_read_numeric_register(self, msg: Packet) -> Packet:
+        number = msg.get("RegisterNumber")
+        if not isinstance(number, int) or not 1 <= number <= N_REGISTERS:
+            return {"ErrorID": int(ErrorID.INVALID_VALUE)}
+        value = self._registers.get(number, 0.0)
+        return {"RegisterNumber": number, "RegisterValue": int(value) if value.is_integer() else value}
+
+    def _watch_heartbeat(self) -> None:
+        """One scan of ``WC_HBEAT`` (docs/controller-watchdogs.md)."""
+        hb = self._heartbeat
+        if hb is None:
+            return
+        now = time.monotonic() - self._t0
+        value = self._registers.get(hb.register, 0.0)
+        if value != self._hb_seen:
+            self._hb_seen, self._hb_seen_at = value, now
+            return
+        if value == 0.0 or now - self._hb_seen_at <= hb.timeout_s:
+            return
+        silent_s = now - self._hb_seen_at
+        for port in hb.arc_ports:
+            if self._dout[port]:
+                self._dout[port] = False
+                self._event("dout", port=port, value=False, cause="heartbeat lost")
+        self._event("heartbeat_lost", register=hb.register, silent_s=round(silent_s, 4))
+        self._alarm = f"UALM[1] host heartbeat R[{hb.register}] lost for {silent_s:.3f} s"
+        self._halt()
+        self._registers[hb.register] = 0.0
+        self._hb_seen, self._hb_seen_at = 0.0, now
 
     def _cmd_get_status(self, msg: Packet) -> Packet:
         rmi_status = (2 if self._paused else 1) if self._running else 0
@@ -500,6 +590,7 @@ class FakeFanucController(LoopThreadFake):
         if value not in ("ON", "OFF"):
             return {"ErrorID": int(ErrorID.INVALID_VALUE)}
         self._dout[port] = value == "ON"
+        self._event("dout", port=port, value=value == "ON")
         return {}
 
     def _cmd_read_io_port(self, msg: Packet) -> Packet:
@@ -594,6 +685,7 @@ class FakeFanucController(LoopThreadFake):
             last = now
 
     def _advance(self, dt: float) -> None:
+        self._watch_heartbeat()
         p_before = self._p_mm.copy()
         if self._running and not self._paused and self._servo_ready:
             budget = dt

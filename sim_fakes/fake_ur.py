@@ -15,8 +15,8 @@ with the code under test) and serves, on ``host`` (``127.0.0.N``, so several fak
   and the move path ur-rtde injects into it, and emulates its register handshake: command in
   ``input_int_register_0``, parameters in the input registers, ``output_int_register_0`` = 1 ready / 2 done, and
   the async progress word in ``output_int_register_2``. moveL (blocking and asynchronous), moveL/movePath paths,
-  stopL/stopJ, stopScript, setPayload and triggerProtectiveStop are emulated; any other command stops the program
-  with an entry in :meth:`FakeURController.errors` (as a script runtime error would on a real controller).
+  stopL/stopJ, stopScript, setPayload, triggerProtectiveStop and setWatchdog are emulated; any other command stops
+  the program with an entry in :meth:`FakeURController.errors` (as a script runtime error would on a real controller).
   Programs other than the control script are recorded but not run. The fake does not stream the
   primary/secondary/real-time client state messages on 30001-30003.
 
@@ -30,9 +30,18 @@ kinematics solution stops the control script (ur-rtde then reports the command a
 Frames and units: poses are UR pose vectors ``[x, y, z, rx, ry, rz]`` (metres, rotation vector in radians) of the
 tool in the robot base frame; ``X_base_tool`` arrays are 4x4 in metres. Times are seconds.
 
+Host watchdog (what a real controller does with ur-rtde's control script; see docs/controller-watchdogs.md):
+``setWatchdog(f)`` makes the script call ``rtde_set_watchdog("input_int_register_0", f, "stop")``: when no RTDE
+input package updates that register for 1/f s (ur-rtde's ``kickWatchdog`` sends one), the program stops, the arm
+decelerates to a stop and every watchdog is removed. A program stop (the watchdog, ``stopScript``, a new script
+replacing the running one, a safety stop) drives the outputs of ``program_stop_outputs_low`` low, as PolyScope's
+I/O setup does for outputs whose program-stop action is "low". The event log records ``rtde_watchdog`` (with how
+long the register was silent) and each output the stop switched off (``digital_output`` with a ``cause``).
+
 Faults (:class:`sim_fakes.faults.FaultInjectable`): ``drop_connection`` closes every client connection and the
-listening sockets (new connections are refused until cleared; the robot keeps running), ``no_answer`` freezes the
-controller (connections stay open, nothing is answered or streamed), ``protective_stop`` and ``emergency_stop``
+listening sockets (new connections are refused until cleared; the robot keeps running), ``no_answer`` cuts the
+controller off the network (connections stay open, nothing is received, answered or streamed; the controller
+itself runs on, so its watchdogs see the host's silence), ``protective_stop`` and ``emergency_stop``
 halt motion at once and stop the program; an emergency stop also cuts the arm's power (robot mode POWER_OFF).
 ``clear_faults()`` lifts the network faults and releases the emergency stop button; the stops stay latched as on a
 real controller: a protective stop until the dashboard's ``unlock protective stop`` (accepted
@@ -118,6 +127,7 @@ CMD_SET_PAYLOAD = 17
 CMD_PROTECTIVE_STOP = 31
 CMD_STOPL = 33
 CMD_STOPJ = 34
+CMD_SET_WATCHDOG = 35
 CMD_MOVE_PATH = 45
 CMD_STOP_SCRIPT = 255
 READY_FOR_CMD = 1
@@ -539,6 +549,13 @@ class ControlScript:
         elif cmd == CMD_PROTECTIVE_STOP:
             ctl.record("trigger_protective_stop")
             ctl.protective_stop("triggerProtectiveStop()")
+        elif cmd == CMD_SET_WATCHDOG:
+            # the script: rtde_set_watchdog("input_int_register_<0 | 24>", read_input_float_reg(0), "stop")
+            variable = f"input_int_register_{24 if self.off_int == 24 else 0}"
+            min_frequency_hz = self.in_double(ctl, 0)
+            ctl.record("set_watchdog", variable=variable, min_frequency_hz=min_frequency_hz, action="stop")
+            ctl.set_rtde_watchdog(variable, min_frequency_hz, "stop")
+            self.signal(ctl, DONE_WITH_CMD)
         elif cmd == CMD_SET_PAYLOAD:
             mass = self.in_double(ctl, 0)
             cog = [self.in_double(ctl, i) for i in (1, 2, 3)]
@@ -599,6 +616,7 @@ class FakeURConfig:
     power_on_s: float = 0.5
     brake_release_s: float = 0.5
     serial_number: str = "2018300001"
+    program_stop_outputs_low: tuple[int, ...] = ()
 
     @property
     def rate_hz(self) -> float:
@@ -657,6 +675,8 @@ class Controller:
         self.payload_kg = 0.0
         self.payload_cog_m = [0.0, 0.0, 0.0]
         self.external_wrench = [0.0] * 6
+        # rtde_set_watchdog: variable -> (min frequency Hz, action, controller time of its last update)
+        self.rtde_watchdogs: dict[str, tuple[float, str, float]] = {}
         self.log = ControllerLog()
 
     def record(self, kind: str, **data: Any) -> None:
@@ -720,8 +740,35 @@ class Controller:
         log.debug("program stopped: %s", reason)
         self.program = None
         self.runtime_state = RUNTIME_STOPPED
+        self.rtde_watchdogs.clear()  # "all watchdogs are removed on program stop" (URScript manual)
         if self.motion is not None:
             self.motion.request_stop(10.0)
+        # the installation's I/O setup: outputs configured to go low when the program stops
+        for index in self.cfg.program_stop_outputs_low:
+            if self.digital_out >> index & 1:
+                self.digital_out &= ~(1 << index)
+                self.record("digital_output", index=index, value=False, cause=f"program stop ({reason})")
+
+    def set_rtde_watchdog(self, variable: str, min_frequency_hz: float, action: str) -> None:
+        """URScript ``rtde_set_watchdog(variable, min_frequency, action)``: when no RTDE input package updates
+        ``variable`` for 1/min_frequency s, ``action`` ("ignore" | "pause" | "stop") is taken."""
+        if min_frequency_hz <= 0.0:
+            self.rtde_watchdogs.pop(variable, None)
+            return
+        self.rtde_watchdogs[variable] = (min_frequency_hz, action, self.now())
+
+    def check_rtde_watchdogs(self) -> None:
+        now = self.now()
+        for variable, (frequency, action, last) in list(self.rtde_watchdogs.items()):
+            silent_s = now - last
+            if silent_s <= 1.0 / frequency or action == "ignore":
+                continue
+            self.record("rtde_watchdog", variable=variable, silent_s=round(silent_s, 4), action=action)
+            if action == "pause" and self.runtime_state == RUNTIME_PLAYING:
+                self.runtime_state = RUNTIME_PAUSED
+                self.hard_stop()
+            else:
+                self.stop_program(f"RTDE watchdog: {variable} not updated for {silent_s:.3f} s")
 
     def halt_program(self, error: str) -> None:
         """A script runtime error: the program stops and the error is kept."""
@@ -826,6 +873,7 @@ class Controller:
 
     def tick(self, dt: float) -> None:
         self.advance_power()
+        self.check_rtde_watchdogs()
         if self.runtime_state == RUNTIME_PAUSED:
             return
         if self.program is not None:
@@ -928,9 +976,13 @@ class Controller:
 
     def apply_inputs(self, values: dict[str, Any]) -> None:
         """Apply one input data package: registers, digital/analog outputs, speed slider."""
+        now = self.now()
         for name, value in values.items():
             if name in self.regs:
                 self.regs[name] = value
+            watched = self.rtde_watchdogs.get(name)
+            if watched is not None:
+                self.rtde_watchdogs[name] = (watched[0], watched[1], now)
         masks = (
             ("standard_digital_output", 0, 8, "digital_output"),
             ("configurable_digital_output", 8, 8, "configurable_digital_output"),
@@ -1240,11 +1292,10 @@ class FakeURServer:
                 await asyncio.sleep(0)
             now = time.monotonic()
             dt, last = min(now - last, 0.05), now
-            if not self.answering.is_set():
-                continue
             try:
-                self.ctl.tick(dt)
-                self._stream()
+                self.ctl.tick(dt)  # the controller runs on while its network does not answer
+                if self.answering.is_set():
+                    self._stream()
             except Exception as err:  # a bug in the fake must be visible, not kill the controller silently
                 log.exception("fake UR cycle failed")
                 self.ctl.log.errors.append(f"internal error: {err!r}")
@@ -1443,6 +1494,8 @@ class FakeURController:
     ``program_start_delay_s``: from a control script's arrival to its start. ``protective_stop_unlock_delay_s``:
     how long after a protective stop the dashboard refuses to unlock it (5 s on a CB3). ``power_on_s`` /
     ``brake_release_s``: how long ``power on`` boots the arm and ``brake release`` takes (seconds on a real arm).
+    ``program_stop_outputs_low``: the standard digital outputs the installation's I/O setup drives low when a
+    program stops (the arc output of a welding cell; see docs/controller-watchdogs.md).
 
     Use as a context manager or call :meth:`start` / :meth:`stop`.
     """
@@ -1460,6 +1513,7 @@ class FakeURController:
         protective_stop_unlock_delay_s: float = 5.0,
         power_on_s: float = 0.5,
         brake_release_s: float = 0.5,
+        program_stop_outputs_low: Sequence[int] = (),
         startup_timeout_s: float = 30.0,
         request_timeout_s: float = 10.0,
     ) -> None:
@@ -1477,7 +1531,10 @@ class FakeURController:
             protective_stop_unlock_delay_s=protective_stop_unlock_delay_s,
             power_on_s=power_on_s,
             brake_release_s=brake_release_s,
+            program_stop_outputs_low=tuple(int(i) for i in program_stop_outputs_low),
         )
+        if any(not 0 <= i < 8 for i in self.cfg.program_stop_outputs_low):
+            raise ValueError(f"program_stop_outputs_low: standard outputs are 0-7, got {program_stop_outputs_low}")
         self.startup_timeout_s = startup_timeout_s
         self.request_timeout_s = request_timeout_s
         self._proc: multiprocessing.process.BaseProcess | None = None
