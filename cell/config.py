@@ -80,7 +80,7 @@ def is_loopback(host: str) -> bool:
 class Section(BaseModel):
     """Base of every config table: strict types, unknown keys refused, immutable once read."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False)
 
 
 class RobotConfig(Section):
@@ -554,8 +554,14 @@ class DetectionConfig(Section):
 class DaemonConfig(Section):
     """``[daemon]`` (``weldcell serve``): bind ``host`` (default 127.0.0.1) and ``port``; ``token``: the bearer token
     every request must carry (required when ``host`` is not a loopback address; at least 16 characters);
-    ``journal``: the SQLite journal; ``status_image``: where the last capture overlay is written (PNG). Relative
-    paths are relative to the config file's folder."""
+    ``journal``: the SQLite journal; ``status_image``: where the last capture overlay is written (PNG).
+    ``jobs_dir`` (default: ``jobs`` next to the journal) and ``captures_dir`` (default: ``captures`` next to the
+    journal): the only folders a job sent over HTTP may name files in (``{"path": ...}`` job files in ``jobs_dir``,
+    prompts files in either); ``max_file_bytes``: the largest such file read. ``allowed_hosts``: further names the
+    ``Host`` header may carry (loopback names and ``host`` always may); ``allowed_origins``: further browser origins
+    (``http://name:port``) allowed to POST; ``request_timeout_s``: a request's head and body must arrive within
+    it; ``max_body_bytes``; ``max_connections`` served at once. Relative paths are relative to the config file's
+    folder."""
 
     host: str = Field(default="127.0.0.1", min_length=1)
     port: int = Field(default=8765, ge=0, le=65535)
@@ -563,6 +569,14 @@ class DaemonConfig(Section):
     journal: str = Field(default="weldcell-journal.sqlite3", min_length=1)
     status_image: str = Field(default="weldcell-status.png", min_length=1)
     recent_jobs: int = Field(default=20, ge=1, le=1000)
+    jobs_dir: str | None = Field(default=None, min_length=1)
+    captures_dir: str | None = Field(default=None, min_length=1)
+    max_file_bytes: int = Field(default=1 << 20, ge=1024, le=64 << 20)
+    allowed_hosts: list[str] = Field(default_factory=list)
+    allowed_origins: list[str] = Field(default_factory=list)
+    request_timeout_s: float = Field(default=10.0, gt=0, le=300)
+    max_body_bytes: int = Field(default=1 << 20, ge=1024, le=64 << 20)
+    max_connections: int = Field(default=64, ge=4, le=4096)
 
     @model_validator(mode="after")
     def _check_token(self) -> DaemonConfig:

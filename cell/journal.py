@@ -6,7 +6,8 @@ loses nothing committed. Several threads may share a :class:`Journal`: one conne
 Several processes may open the same file (SQLite locks it; writers wait up to ``busy_timeout_s``).
 
 Jobs have their own states, distinct from the state machine's: ``queued`` -> ``running`` -> ``done`` |
-``failed`` | ``cancelled``; plus ``interrupted``: opening the journal marks every job found ``queued`` or
+``failed`` | ``cancelled`` | ``dry_run`` (a dry run that planned and validated its path, nothing moved); plus
+``interrupted``: opening the journal marks every job found ``queued`` or
 ``running`` as interrupted (the process that owned it died) and lists them in :attr:`Journal.interrupted`.
 Interrupted jobs are never resumed: a half-welded part needs an operator.
 
@@ -31,8 +32,8 @@ from cell.errors import WeldcellError
 
 logger = logging.getLogger(__name__)
 
-JOB_STATES = ("queued", "running", "done", "failed", "cancelled", "interrupted")
-FINAL_JOB_STATES = frozenset({"done", "failed", "cancelled", "interrupted"})
+JOB_STATES = ("queued", "running", "done", "failed", "cancelled", "dry_run", "interrupted")
+FINAL_JOB_STATES = frozenset({"done", "failed", "cancelled", "dry_run", "interrupted"})
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS jobs (
@@ -235,7 +236,7 @@ class Journal:
                 stmts.append(
                     (
                         "UPDATE jobs SET state = ?, finished_s = ?, error = COALESCE(?, error) "
-                        "WHERE id = ? AND state NOT IN ('done', 'failed', 'cancelled', 'interrupted')",
+                        "WHERE id = ? AND state NOT IN ('done', 'failed', 'cancelled', 'dry_run', 'interrupted')",
                         (job_state, now, error, job_id),
                     )
                 )
@@ -243,7 +244,7 @@ class Journal:
                 stmts.append(
                     (
                         "UPDATE jobs SET state = ?, started_s = COALESCE(started_s, ?) "
-                        "WHERE id = ? AND state NOT IN ('done', 'failed', 'cancelled', 'interrupted')",
+                        "WHERE id = ? AND state NOT IN ('done', 'failed', 'cancelled', 'dry_run', 'interrupted')",
                         (job_state, now if job_state == "running" else None, job_id),
                     )
                 )

@@ -17,8 +17,9 @@ The callback rule:
 The fault rule: any exception raised by a callback (``MachineError``, a trigger that is not allowed in the current
 state, excepted: that is the caller's mistake and is raised to it) leaves the state as it was and is then handed
 to ``transitions``' ``on_exception`` hook, which fires ``fail``: its ``before`` stops the motion and turns the arc
-off through the injected :attr:`CellActions.stop_motion` and :attr:`CellActions.arc_off` (each attempted even if
-the other raises; their failures are added to the reason), then the machine enters ``fault`` with the reason.
+off through the injected :attr:`CellActions.stop_motion` and :attr:`CellActions.arc_off` (both attempted at once,
+each whatever the other does, and waited for at most :data:`STOP_ATTEMPT_S`: a robot that does not answer must
+not keep the cell out of ``fault``; their failures are added to the reason), then the machine enters ``fault``.
 A device fault noticed outside a callback (a watchdog, an e-stop input) calls :meth:`CellMachine.fault_now`, which
 stops motion and the arc immediately, from any thread, and then takes the machine to ``fault``. ``fault`` is
 left only by :meth:`CellMachine.acknowledge` with an operator's name.
@@ -34,6 +35,7 @@ from __future__ import annotations
 import logging
 import sys
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
@@ -88,6 +90,7 @@ TRANSITIONS: list[dict[str, Any]] = [
     {"trigger": "advance", "source": S.PLANNING, "dest": S.AWAITING_APPROVAL, "before": "plan"},
     {"trigger": "approve", "source": S.AWAITING_APPROVAL, "dest": S.WELDING, "conditions": "operator_named"},
     {"trigger": "reject", "source": S.AWAITING_APPROVAL, "dest": S.IDLE, "conditions": "operator_named"},
+    {"trigger": "end_dry_run", "source": S.AWAITING_APPROVAL, "dest": S.IDLE, "conditions": "dry_run"},
     {"trigger": "advance", "source": S.WELDING, "dest": S.RETRACTING, "before": "weld"},
     {"trigger": "advance", "source": S.RETRACTING, "dest": S.DONE, "before": "retract"},
     # an operator's pause stops motion and the arc; resume returns to the state that was paused; abort retracts
@@ -160,6 +163,7 @@ class CellMachine:
         self.fault_reason: str | None = None
         self.last_error: BaseException | None = None
         self.paused_from: CellState | None = None
+        self.dry_run = False
         self._aborted = False
         self._interrupt: tuple[str, str] | None = None  # ("pause" | "fault", reason)
         self._interrupt_lock = threading.Lock()
@@ -201,11 +205,13 @@ class CellMachine:
             return bool(self._model.trigger(trigger, **kwargs))
 
     # ------------------------------------------------------------------------------------------ triggers
-    def start_job(self, job_id: int, *, n_captures: int = 1) -> bool:
+    def start_job(self, job_id: int, *, n_captures: int = 1, dry_run: bool = False) -> bool:
         """Start job ``job_id`` (already submitted to the journal) with ``n_captures`` capture positions."""
         if isinstance(n_captures, bool) or not isinstance(n_captures, int) or n_captures < 1:
             raise ValueError(f"n_captures must be an integer >= 1, got {n_captures!r}")
-        return self._fire("start_job", job_id=int(job_id), n_captures=n_captures, reason="job started")
+        return self._fire(
+            "start_job", job_id=int(job_id), n_captures=n_captures, dry_run=bool(dry_run), reason="job started"
+        )
 
     def advance(self) -> bool:
         """Do the current state's work and move on (homing, moving_to_capture, capturing, detecting, planning,
@@ -219,6 +225,10 @@ class CellMachine:
     def reject(self, operator: str) -> bool:
         """The operator refuses the planned path: the job is cancelled, nothing moves."""
         return self._fire("reject", operator=_operator(operator), reason=f"path rejected by {operator.strip()}")
+
+    def end_dry_run(self) -> bool:
+        """A dry run's path is planned and validated: the job ends (journaled ``dry_run``), nothing moved."""
+        return self._fire("end_dry_run", reason="dry run: path planned and validated, nothing moved or welded")
 
     def resume(self) -> bool:
         """Back to the state that was paused."""
@@ -248,8 +258,8 @@ class CellMachine:
             if self._interrupt is None or kind == "fault":  # a fault outranks a pause
                 self._interrupt = (kind, reason)
         problems = _stop_everything(self.actions)
-        if problems and kind == "pause":
-            with self._interrupt_lock:
+        if problems:
+            with self._interrupt_lock:  # a pause that could not stop is a fault
                 self._interrupt = ("fault", f"{reason}; stopping failed: {'; '.join(problems)}")
         with self.lock:  # waits for a running activity, which the stop above makes return
             self._apply_interrupt()
@@ -264,8 +274,8 @@ class CellMachine:
         if kind == "fault":
             if state is S.FAULT:
                 logger.warning("%s: %s while already in fault (%s)", self.name, reason, self.fault_reason)
-            else:
-                self._model.trigger("fail", reason=reason)
+            else:  # stop and arc off were attempted by _interrupt_now already: not twice
+                self._model.trigger("fail", reason=reason, stopped=True)
         elif state in PAUSABLE:
             self._model.trigger("pause", reason=reason)
         elif state is not S.PAUSED:
@@ -274,6 +284,9 @@ class CellMachine:
     # ------------------------------------------------------------------------------------------ conditions
     def _cb_more_captures(self, event: EventData) -> bool:
         return self.capture_index + 1 < self.n_captures
+
+    def _cb_dry_run(self, event: EventData) -> bool:
+        return self.dry_run
 
     def _cb_operator_named(self, event: EventData) -> bool:
         return bool(str(event.kwargs.get("operator", "")).strip())
@@ -291,6 +304,7 @@ class CellMachine:
                 raise ValueError(f"job {job_id} is already {job.state}; submit it again to rerun it")
         self.job_id = job_id
         self.n_captures = int(event.kwargs["n_captures"])
+        self.dry_run = bool(event.kwargs.get("dry_run", False))
         self.capture_index = 0
         self.paused_from = None
         self._aborted = False
@@ -336,7 +350,7 @@ class CellMachine:
     def _cb_safe_stop(self, event: EventData) -> None:
         """Stop motion, arc off: never raises (we are already failing); problems go into the reason."""
         reason = str(event.kwargs.get("reason", "fault"))
-        problems = _stop_everything(self.actions)
+        problems = [] if event.kwargs.get("stopped") else _stop_everything(self.actions)
         if problems:
             reason += f"; stopping failed: {'; '.join(problems)}"
         self.fault_reason = reason
@@ -360,6 +374,8 @@ class CellMachine:
                 error = "aborted by the operator"
         elif trigger == "reject":
             job_state, error = "cancelled", reason
+        elif trigger == "end_dry_run":
+            job_state = "dry_run"
         elif dst is S.FAULT and self.job_id is not None:
             job_state, error = "failed", reason
         job_id = self.job_id
@@ -424,14 +440,38 @@ def _operator(operator: str) -> str:
     return name
 
 
-def _stop_everything(actions: CellActions) -> list[str]:
-    """stop_motion() then arc_off(), each attempted whatever the other did; the failures as text."""
-    problems = []
+STOP_ATTEMPT_S = 0.5
+"""How long a fault waits for the stop and arc-off commands before it goes on without their answer. Both are
+attempted at once, each in a thread of its own; a controller that does not answer is the controller-side
+watchdog's business (docs/controller-watchdogs.md), not a reason to keep the cell out of ``fault``."""
+
+
+def _stop_everything(actions: CellActions, *, wait_s: float = STOP_ATTEMPT_S) -> list[str]:
+    """stop_motion() and arc_off(), both attempted at once whatever the other does, waited for at most ``wait_s``;
+    the failures (and the commands still unanswered) as text."""
+    results: dict[str, BaseException | None] = {}
+    threads = []
     for what, fn in (("stop_motion", actions.stop_motion), ("arc_off", actions.arc_off)):
-        try:
-            fn()
-        except Exception as err:
-            logger.exception("%s failed", what)
+
+        def attempt(what: str = what, fn: Callable[[], None] = fn) -> None:
+            try:
+                fn()
+                results[what] = None
+            except BaseException as err:
+                logger.error("%s failed: %s: %s", what, type(err).__name__, err)
+                results[what] = err
+
+        thread = threading.Thread(target=attempt, name=f"cell-{what}", daemon=True)
+        thread.start()
+        threads.append((what, thread))
+    deadline = time.monotonic() + wait_s
+    problems = []
+    for what, thread in threads:
+        thread.join(max(0.0, deadline - time.monotonic()))
+        if thread.is_alive():
+            logger.error("%s: no answer within %.1f s; not waiting for it", what, wait_s)
+            problems.append(f"{what}: not confirmed within {wait_s:.1f} s")
+        elif (err := results.get(what)) is not None:
             problems.append(f"{what}: {type(err).__name__}: {err}")
     return problems
 

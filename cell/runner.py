@@ -28,6 +28,7 @@ planning (with validation) and motion (homing, welding, retracting).
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import dataclasses
 import logging
@@ -71,13 +72,18 @@ logger = logging.getLogger(__name__)
 S = CellState
 
 AUTO_APPROVER = "auto (job approval = false)"
-DRY_RUN_OPERATOR = "dry run (nothing moved or welded)"
 FINAL_STATES = (S.DONE, S.FAULT, S.IDLE)
 CYCLE_PHASES = ("capture", "detection", "planning", "motion")
+MAX_DWELL_S = 10.0
+"""The longest arc-on or arc-off dwell a job may ask for."""
 
 
 class CellFaulted(WeldcellError):
     """A job cannot start: the cell is in ``fault`` and waits for an operator's acknowledgement."""
+
+
+class CellBusy(WeldcellError):
+    """The runner is still busy with a job (an acknowledgement waits for it to finish)."""
 
 
 def safety_limits(config: CellConfig) -> SafetyLimits:
@@ -165,7 +171,9 @@ Progress = Callable[[str, dict[str, Any]], None]
 class JobRunner:
     """Runs jobs on ``cell`` (its drivers connected by :meth:`connect` or already connected), journaling to
     ``journal``. ``on_progress``: see :data:`Progress`. ``status_image``: where the overlay of the last capture is
-    written (PNG; None: not written). ``watchdog_period_s``: how often the watchdog polls the devices."""
+    written (PNG; None: not written). ``watchdog_period_s``: how often the watchdog polls the devices;
+    ``answer_timeout_s``: a device whose status has not come back within this long is a fault (the poll runs in a
+    thread of its own, so a device that hangs cannot hold the watchdog up)."""
 
     def __init__(
         self,
@@ -175,6 +183,7 @@ class JobRunner:
         on_progress: Progress | None = None,
         status_image: str | Path | None = None,
         watchdog_period_s: float = 0.1,
+        answer_timeout_s: float = 0.6,
     ) -> None:
         self.cell = cell
         self.config = cell.config
@@ -183,6 +192,8 @@ class JobRunner:
         self.on_progress = on_progress
         self.status_image = Path(status_image) if status_image is not None else None
         self.watchdog_period_s = watchdog_period_s
+        self.answer_timeout_s = answer_timeout_s
+        self._job_lock = threading.Lock()  # held by run() for a whole job; acknowledge() waits for it
         self._data: JobData | None = None
         arc_output = cell.config.welding.arc_output
         self._arc_index = arc_output if arc_output is not None else WeldParams().arc_do_index
@@ -233,6 +244,17 @@ class JobRunner:
         Raises :class:`CellFaulted` when the cell is in ``fault`` (acknowledge first); a failure during the job does
         not raise: it ends the job in ``fault`` and the report says why.
         """
+        with self._job_lock:
+            return self._run(job, job_id=job_id, dry_run=dry_run, approve=approve)
+
+    def _run(
+        self,
+        job: Job,
+        *,
+        job_id: int | None,
+        dry_run: bool,
+        approve: Callable[[WeldPath], str | None] | None,
+    ) -> JobReport:
         if self.machine.state is S.FAULT:
             raise CellFaulted(
                 f"the cell is in fault ({self.machine.fault_reason}); an operator must acknowledge it first"
@@ -247,7 +269,7 @@ class JobRunner:
         self._start_watchdog()
         try:
             self._emit("state", state=self.machine.state.value, reason=f"job {job_id} ({job.workpiece}) starting")
-            if self.machine.start_job(job_id, n_captures=len(job.captures)):
+            if self.machine.start_job(job_id, n_captures=len(job.captures), dry_run=dry_run):
                 self._drive(data, approve)
         finally:
             self._stop_watchdog()
@@ -268,7 +290,7 @@ class JobRunner:
             if state is S.AWAITING_APPROVAL:
                 assert data.path is not None
                 if data.dry_run:
-                    m.reject(DRY_RUN_OPERATOR)
+                    m.end_dry_run()
                 elif not data.job.spec.approval:
                     m.approve(AUTO_APPROVER)
                 else:
@@ -299,9 +321,17 @@ class JobRunner:
         outputs = self.cell.robot.state().digital_outputs
         return self._arc_index < len(outputs) and bool(outputs[self._arc_index])
 
-    def acknowledge(self, operator: str) -> bool:
-        """Leave ``fault`` (clearing latched device faults): an operator has seen the fault and fixed its cause."""
-        return self.machine.acknowledge(operator)
+    def acknowledge(self, operator: str, *, wait_s: float = 30.0) -> bool:
+        """Leave ``fault`` (clearing latched device faults): an operator has seen the fault and fixed its cause.
+
+        Waits (at most ``wait_s``) until a job that faulted has finished in the runner (its report stored), so that
+        the report and the journal say the same; raises :class:`CellBusy` when it has not by then."""
+        if not self._job_lock.acquire(timeout=wait_s):
+            raise CellBusy(f"the job runner is still finishing its job after {wait_s:.0f} s; acknowledge again")
+        try:
+            return self.machine.acknowledge(operator)
+        finally:
+            self._job_lock.release()
 
     # ------------------------------------------------------------------------------------------ report
     def _report(self, data: JobData, total_s: float) -> JobReport:
@@ -408,18 +438,15 @@ class JobRunner:
             raise errors[0]
 
     def _arc_off(self) -> None:
-        """Switch the arc output off (reconnecting once if the robot connection dropped); the arc time is added."""
+        """Switch the arc output off; the arc time is added."""
         with self._arc_lock:
             if self._arc_on_since is not None:
                 if self._data is not None:
                     self._data.arc_time_s += time.monotonic() - self._arc_on_since
                 self._arc_on_since = None
-        robot = self.cell.robot
-        try:
-            robot.set_digital_output(self._arc_index, False)
-        except ConnectionLost:
-            robot.connect()
-            robot.set_digital_output(self._arc_index, False)
+        # no reconnect here: a fault must not wait on a connect timeout. The controller's watchdog switches the arc
+        # off when the host is gone (docs/controller-watchdogs.md); acknowledge() reconnects before anything moves.
+        self.cell.robot.set_digital_output(self._arc_index, False)
 
     def _arc_on(self) -> None:
         self.cell.robot.set_digital_output(self._arc_index, True)
@@ -474,6 +501,67 @@ class JobRunner:
             self._move_track(spec.track_position_m, f"capture {index + 1}")
             self._note(f"robot to capture pose {index + 1}/{len(data.job.captures)}")
             self._move(X_base_tool, self.config.robot.speed_m_s, self.config.robot.accel_m_s2, f"capture {index + 1}")
+
+    def check_job(self, job: Job) -> None:
+        """Refuse (ConfigError naming the job's key and the cell's limit) a job the cell must not even queue: speeds,
+        acceleration and blend over the cell's ``[safety]`` limits, another arc output than the cell's (its
+        controller-side watchdog covers that one), capture poses beyond the reach or track positions outside the
+        track's soft limits, dwell times and distances out of any sensible range, seam ids that are not 31-bit
+        integers. Numbers are finite already (the job's tables refuse inf and nan)."""
+        lim = self.limits
+        params = weld_params(self.config.welding, job.spec.welding, job.spec.seams.seam_filter())
+        w = job.spec.welding
+        for key, value, limit, name in (
+            ("travel_speed_m_s", params.travel_speed_m_s, lim.max_speed_m_s, "max_speed_m_s"),
+            ("approach_speed_m_s", params.approach_speed_m_s, lim.max_speed_m_s, "max_speed_m_s"),
+            ("air_speed_m_s", params.air_speed_m_s, lim.max_speed_m_s, "max_speed_m_s"),
+            ("accel_m_s2", params.accel_m_s2, lim.max_accel_m_s2, "max_accel_m_s2"),
+            ("blend_m", params.blend_m, lim.max_blend_m, "max_blend_m"),
+        ):
+            if not value <= limit:
+                raise ConfigError(
+                    f"{job.where(f'welding.{key}')}: {value} exceeds the cell's limit [safety] {name} = {limit}"
+                )
+        reach = lim.geometry.reach
+        for key in ("approach_m", "retract_m", "stickout_m"):
+            value = getattr(params, key)
+            if not value <= reach.radius_m:
+                raise ConfigError(
+                    f"{job.where(f'welding.{key}')}: {value} m exceeds the reach radius [safety] reach_radius_m = "
+                    f"{reach.radius_m} m"
+                )
+        for key in ("arc_on_dwell_s", "arc_off_dwell_s"):
+            value = getattr(params, key)
+            if not value <= MAX_DWELL_S:
+                raise ConfigError(f"{job.where(f'welding.{key}')}: {value} s exceeds the limit of {MAX_DWELL_S} s")
+        cell_arc = self.config.welding.arc_output if self.config.welding.arc_output is not None else 0
+        if w.arc_output is not None and w.arc_output != cell_arc:
+            raise ConfigError(
+                f"{job.where('welding.arc_output')}: {w.arc_output} is not the cell's arc output [welding] "
+                f"arc_output = {cell_arc} (the one its controller-side watchdog switches off)"
+            )
+        for seam_id in job.spec.seams.ids or ():
+            if not 0 <= seam_id < 2**31:
+                raise ConfigError(f"{job.where('seams.ids')}: {seam_id} is not a seam id (0 <= id < 2^31)")
+        track = lim.geometry.track
+        for i, capture in enumerate(job.captures):
+            t = capture.track_position_m
+            if track is None and t != 0.0:
+                raise ConfigError(
+                    f"{job.where(f'capture[{i}].track_position_m')}: {t} m, but the cell has no track ([track])"
+                )
+            if track is not None and not track.min_m <= t <= track.max_m:
+                raise ConfigError(
+                    f"{job.where(f'capture[{i}].track_position_m')}: {t} m is outside the track's soft limits "
+                    f"[track] soft_limit_min_m..soft_limit_max_m = {track.min_m}..{track.max_m} m"
+                )
+            X = self.capture_pose(job, i)
+            d = float(np.linalg.norm(X[:3, 3] - reach.centre_base))
+            if not d <= reach.radius_m:
+                raise ConfigError(
+                    f"{job.where(f'capture[{i}]')}: the capture pose is {d:.3f} m from the reach centre, beyond "
+                    f"[safety] reach_radius_m = {reach.radius_m} m"
+                )
 
     def capture_pose(self, job: Job, index: int) -> np.ndarray:
         """(4, 4) ``X_base_tool`` of capture ``index`` of ``job`` with the carriage at its track position."""
@@ -688,11 +776,14 @@ class JobRunner:
         except (ConnectionLost, DeviceTimeout):
             robot.connect()
             st = robot.state()
-        if st.protective_stop or st.emergency_stop or st.mode is RobotMode.FAULT:
-            reset = getattr(robot, "reset_faults", None) or getattr(robot, "unlock_protective_stop", None)
-            if reset is None:
-                raise DriverError(f"{robot.name}: cannot clear '{st.message}' from here; clear it on the controller")
+        reset = getattr(robot, "reset_faults", None)
+        if reset is not None:  # always: a controller-side watchdog's alarm (FANUC UALM) is not in the robot state
             reset()
+        elif st.protective_stop or st.emergency_stop or st.mode is RobotMode.FAULT:
+            unlock = getattr(robot, "unlock_protective_stop", None)
+            if unlock is None:
+                raise DriverError(f"{robot.name}: cannot clear '{st.message}' from here; clear it on the controller")
+            unlock()
         track = self.cell.track
         if track is not None:
             try:
@@ -721,14 +812,24 @@ class JobRunner:
             thread.join(timeout=10.0)
 
     def _watch(self) -> None:
-        while not self._watchdog_stop.wait(self.watchdog_period_s):
-            if self.machine.state in (*FINAL_STATES, S.PAUSED) or self._watchdog_fired:
-                continue
-            problem = self._device_problem()
-            if problem is not None and not self._watchdog_stop.is_set():
-                self._watchdog_fired = True
-                logger.error("watchdog: %s", problem)
-                self.machine.fault_now(f"watchdog: {problem}")
+        poller = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="cell-device-poll")
+        try:
+            while not self._watchdog_stop.wait(self.watchdog_period_s):
+                if self.machine.state in (*FINAL_STATES, S.PAUSED) or self._watchdog_fired:
+                    continue
+                poll = poller.submit(self._device_problem)
+                try:
+                    problem = poll.result(timeout=self.answer_timeout_s)
+                except concurrent.futures.TimeoutError:
+                    problem = f"no status from the robot or the track within {self.answer_timeout_s:.1f} s"
+                except Exception as err:  # a bug in a driver's status path must still stop the cell
+                    problem = f"device status failed: {type(err).__name__}: {err}"
+                if problem is not None and not self._watchdog_stop.is_set():
+                    self._watchdog_fired = True
+                    logger.error("watchdog: %s", problem)
+                    self.machine.fault_now(f"watchdog: {problem}")
+        finally:
+            poller.shutdown(wait=False, cancel_futures=True)
 
     def _device_problem(self) -> str | None:
         """Why the cell must stop now, or None."""

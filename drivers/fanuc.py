@@ -17,7 +17,9 @@ operator's acknowledgement. An unsolicited ``FRC_SystemFault`` raises :class:`Sy
 same way.
 
 Host heartbeat (``heartbeat_register``, docs/controller-watchdogs.md): while connected, a task on the I/O thread
-writes a changing count (1..30000) to ``R[heartbeat_register]`` every ``heartbeat_period_s``. The integrator's
+writes ``R[heartbeat_register]`` every ``heartbeat_period_s``: a changing count (1..30000) while a digital output
+this driver switched on is on or a motion is in flight, 0 (the watchdog disarmed) when there is nothing to make
+safe (a host busy with detection holds the GIL for seconds; that must not trip the controller). The integrator's
 ``WC_HBEAT`` program on the controller switches the arc output off and stops the motion (user alarm, STOP.G)
 when that register stands still for its timeout: a dropped link, a hung or killed host.
 """
@@ -64,6 +66,9 @@ T = TypeVar("T")
 CNT100_BLEND_M = 0.010
 """The blend radius mapped to CNT100. FANUC's CNT value is a corner-rounding percentage, not a distance; the
 mapping ``CNT = 100 * blend_m / CNT100_BLEND_M`` (clamped to 1..100) is weldcell's convention."""
+
+MOTION_STATUS_TIMEOUT_S = 0.4
+"""A status request during a motion must be answered within this long (see FanucRobot._motion_status)."""
 
 MOVING_SPEED_MM_S = 0.5
 """TCP speeds above this (``FRC_ReadTCPSpeed``) count as moving."""
@@ -153,6 +158,8 @@ class FanucRobot:
         self.heartbeat_register = heartbeat_register
         self.heartbeat_period_s = heartbeat_period_s
         self._heartbeat: concurrent.futures.Future[None] | None = None
+        self._outputs_on: set[int] = set()  # outputs this driver switched on (and not off since)
+        self._motions = 0  # motions in flight
         self._io: _LoopThread | None = None
         self._client: RMIClient | None = None
         self._lifecycle_lock = threading.Lock()
@@ -187,9 +194,15 @@ class FanucRobot:
         """R[register] = 1, 2, ... 30000, 1, ... every heartbeat_period_s while the session lives."""
         count = 0
         while client.connected:
-            count = count % 30000 + 1
+            # armed (counting) while an output is on or a motion is in flight; 0 (disarmed) otherwise, so that a
+            # host busy with detection for a while does not trip the controller with nothing to make safe
+            if self._outputs_on or self._motions:
+                count = count % 30000 + 1
+                value = count
+            else:
+                value = 0
             try:
-                await client.write_numeric_register(register, count, timeout_s=self.timeout_s)
+                await client.write_numeric_register(register, value, timeout_s=self.timeout_s)
             except DriverError as err:  # the controller's watchdog acts on the silence; say so once per failure
                 logger.warning("%s: heartbeat R[%d] not written: %s", self.name, register, err)
             await asyncio.sleep(self.heartbeat_period_s)
@@ -264,7 +277,11 @@ class FanucRobot:
         if index < 0:
             raise ValueError(f"digital output index must be >= 0 (DO[index + 1]), got {index}")
         logger.debug("%s: DO[%d] <- %s", self.name, index + 1, value)
+        if value:
+            self._outputs_on.add(index)  # armed before the output goes on
         self._run(lambda c: c.write_dout(index + 1, bool(value)), n_requests=1, what=f"write DO[{index + 1}]")
+        if not value:
+            self._outputs_on.discard(index)
 
     def stop(self) -> None:
         """FRC_Abort: stop now and drop the queued instructions (a blocked move raises MotionAborted)."""
@@ -360,14 +377,18 @@ class FanucRobot:
             task = asyncio.current_task()
             assert task is not None
             holder.append(task)
-            await self._motion(
-                client,
-                targets,
-                speed_mm_s=speed_mm_s,
-                cnt_value=cnt_value,
-                timeout_s=timeout_s,
-                on_complete=progress.put,
-            )
+            self._motions += 1  # the heartbeat is armed while a motion is in flight
+            try:
+                await self._motion(
+                    client,
+                    targets,
+                    speed_mm_s=speed_mm_s,
+                    cnt_value=cnt_value,
+                    timeout_s=timeout_s,
+                    on_complete=progress.put,
+                )
+            finally:
+                self._motions -= 1
 
         def cancel_motion() -> None:  # on the loop; the motion coroutine aborts the program on its way out
             if holder:
@@ -424,7 +445,7 @@ class FanucRobot:
                 if done:
                     stream.result()
                     return
-                self._raise_if_unsafe(client, await client.get_status())
+                self._raise_if_unsafe(client, await self._motion_status(client))
         except BaseException as err:
             if not stream.done():
                 stream.cancel()
@@ -438,6 +459,17 @@ class FanucRobot:
                 if safety is not None:
                     raise safety from err
             raise
+
+    async def _motion_status(self, client: RMIClient) -> RMIStatus:
+        """FRC_GetStatus during a motion, answered within MOTION_STATUS_TIMEOUT_S or the session is given up: a
+        controller that stops answering mid-motion is a lost connection now, not after the command timeout."""
+        timeout_s = min(self.timeout_s, MOTION_STATUS_TIMEOUT_S)
+        try:
+            return await client.get_status(timeout_s=timeout_s)
+        except DeviceTimeout as err:
+            reason = f"{self.name}: no answer to FRC_GetStatus within {timeout_s:.1f} s during a motion"
+            client.abandon(reason)
+            raise ConnectionLost(f"{reason}; connect again once it answers") from err
 
     async def _prepare_program(self, client: RMIClient, status: RMIStatus) -> None:
         """Make sure RMI_MOVE runs, empty, with our sequence counter; (re)initialize it otherwise."""

@@ -412,6 +412,11 @@ class RMIClient:
         if self._writer is not None:
             self._writer.close()
 
+    def abandon(self, reason: str) -> None:
+        """Give the session up (a controller that stopped answering): every waiter and later request gets
+        ConnectionLost at once; connect again with a new client."""
+        self._mark_lost(ConnectionLost(reason))
+
     def _raise_if_lost(self) -> None:
         if self._lost is not None:
             raise ConnectionLost(str(self._lost))

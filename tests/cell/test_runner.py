@@ -18,6 +18,7 @@ import dataclasses
 import json
 import math
 import threading
+import time
 import tomllib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -471,7 +472,8 @@ def test_a_dry_run_plans_and_validates_and_moves_nothing(fanuc: Rig) -> None:
     assert report.seams_planned >= 8 and report.seams_welded == 0 and report.poses_sent == 0
     assert report.path is not None and len(report.path["passes"]) == report.seams_planned
     assert len(fanuc.robot_fake.records()) == before and dout.writes == []
-    assert fanuc.journal.job(report.job_id).state == "cancelled"
+    record = fanuc.journal.job(report.job_id)
+    assert (record.state, record.error) == ("dry_run", None)  # a dry run that did its work is not a cancellation
 
 
 @pytest.mark.timeout(60)
@@ -484,7 +486,7 @@ def test_ten_dry_runs_back_to_back_leave_no_thread_behind_and_are_all_journaled(
     assert [r.outcome for r in reports] == ["dry_run"] * 10
     assert all(r.path is not None and r.seams_planned >= 3 and r.poses_sent == 0 for r in reports)
     assert threading.active_count() == threads
-    assert [j.state for j in fanuc.journal.recent_jobs(20)] == ["cancelled"] * 10
+    assert [j.state for j in fanuc.journal.recent_jobs(20)] == ["dry_run"] * 10
     assert fanuc.runner.machine.state is CellState.IDLE
 
 
@@ -556,6 +558,65 @@ def test_a_connection_lost_while_streaming_faults_and_the_arc_is_off_once_reconn
     assert not rig.runner.acknowledge("Ada")  # the controller still refuses connections
     follow_up_job_runs(rig, clear=rig.robot_fake.clear_faults, weld=False)
     assert rig.arc_is_off()
+
+
+@on_both_robots
+@pytest.mark.timeout(90)
+def test_a_controller_that_stops_answering_during_an_arc_is_a_fault_within_one_second(rig: Rig) -> None:
+    injected: list[float] = []
+
+    def go_silent() -> None:
+        injected.append(time.time())
+        rig.robot_fake.inject("no_answer")
+
+    on_weld_pose(rig.runner, 1, 2, go_silent)
+    report = rig.runner.run(make_job(job_text(min_length_m=0.1)))
+    assert report.state == "fault" and report.outcome == "fault", report
+    t_fault = next(e.time_s for e in rig.journal.events(report.job_id) if e.to_state == "fault")
+    assert 0.0 < t_fault - injected[0] < 1.0, t_fault - injected[0]
+    record = rig.journal.job(report.job_id)
+    assert record.state == "failed" and record.error == report.reason  # the report and the journal agree
+    # the controller's own watchdog switched the arc off: the host could not reach it
+    wait_for_arc_off(rig, limit_s=1.0)
+    follow_up_job_runs(rig, clear=rig.robot_fake.clear_faults, weld=False)
+
+
+def wait_for_arc_off(rig: Rig, *, limit_s: float) -> None:
+    deadline = time.monotonic() + limit_s
+    while not rig.arc_is_off():
+        assert time.monotonic() < deadline, f"the arc output still reads on after {limit_s} s"
+        time.sleep(0.01)
+
+
+@pytest.mark.timeout(90)
+def test_an_acknowledgement_waits_until_the_runner_has_finished_the_job(fanuc: Rig) -> None:
+    runner = fanuc.runner
+    answers: list[tuple[float, bool]] = []
+    acked = threading.Event()
+
+    def acknowledge_at_once() -> None:  # from another thread, the moment the machine enters fault
+        ok = runner.acknowledge("Ada")
+        answers.append((time.monotonic(), ok))
+        acked.set()
+
+    def on_fault(kind: str, data: dict[str, Any]) -> None:
+        if kind == "state" and data["state"] == "fault" and not answers and not acked.is_set():
+            threading.Thread(target=acknowledge_at_once, daemon=True).start()
+            time.sleep(0.3)  # the runner is still finishing its job: the acknowledgement must wait for it
+
+    runner.on_progress = on_fault
+    on_state_machine = runner.machine
+    fanuc.robot_fake.inject("protective_stop")
+    report = runner.run(make_job(job_text()))
+    finished = time.monotonic()
+    assert acked.wait(30)
+    assert report.outcome == "fault" and report.state == "fault", report  # not "rejected" by a racing ack
+    assert fanuc.journal.job(report.job_id).state == "failed"
+    t_ack, ok = answers[0]
+    assert t_ack >= finished - 0.05
+    assert not ok  # the stop is still latched (the cause was not cleared), so the cell stays in fault
+    assert on_state_machine.state is CellState.FAULT
+    follow_up_job_runs(fanuc, clear=fanuc.robot_fake.clear_faults, weld=False)
 
 
 @on_both_robots
@@ -640,10 +701,24 @@ def test_a_job_on_the_fake_ur5_welds_every_planned_pose_with_the_arc_between_the
     commanded_poses(expected_poses(ur5, job), fake.commanded_targets()[n_targets:])
     # the order of the commands: approach, arc-on pose, arc on, travel path, arc off, retract
     events = fake.events()[n_events:]
-    kinds = [e["kind"] for e in events if e["kind"] in ("move_linear", "path", "digital_output")]
-    per_pass = ["move_linear", "move_linear", "digital_output", "path", "digital_output", "move_linear"]
+    # the driver's writes (the program-stop action's own "arc off" at each path upload is checked below)
+    kinds = [e["kind"] for e in events if e["kind"] in ("move_linear", "path", "digital_output") and "cause" not in e]
+    per_pass = ["move_linear", "move_linear", "digital_output", "path", "digital_output", "digital_output"]
+    per_pass.append("move_linear")  # approach, arc-on pose, arc on, path (restored arc), arc off, retract
     home_and_capture = ["digital_output", "move_linear", "move_linear"]
     assert kinds == [*home_and_capture, *per_pass * len(path.passes), "digital_output", "move_linear"]
-    assert fake.io_changes()[n_io:] == [(0, False)] + [(0, True), (0, False)] * len(path.passes) + [(0, False)]
+    writes = [(e["index"], e["value"]) for e in events if e["kind"] == "digital_output" and "cause" not in e]
+    assert writes == [(0, False)] + [(0, True), (0, True), (0, False)] * len(path.passes) + [(0, False)]
+    # each path upload stopped the program (arc output low) and the arc was back on before the slider let go
+    for i, e in enumerate(events):
+        if e["kind"] == "path":
+            before = [x for x in events[:i] if x["kind"] == "digital_output"][-1]
+            after = [x for x in events[i:] if x["kind"] in ("digital_output", "speed_slider")][:2]
+            assert before.get("cause", "").startswith("program stop") and before["value"] is False
+            assert [(x["kind"], x.get("value"), x.get("fraction")) for x in after] == [
+                ("digital_output", True, None),
+                ("speed_slider", None, 1.0),
+            ]
+    assert fake.io_changes()[n_io:][0] == (0, False)
     assert ur5.arc_is_off()
     assert state_changes(ur5.journal, report.job_id) == STATES_OF_A_JOB

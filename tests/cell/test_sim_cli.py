@@ -209,7 +209,7 @@ def test_bad_config_exits_2_with_the_reason(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert result.stderr.strip() == (
         f"weldcell sim: {path}: robot.hots: unknown key (allowed: kind, name, host, port, dashboard_port, "
-        "timeout_s, connect_timeout_s, speed_m_s, max_speed_m_s, accel_m_s2)"
+        "timeout_s, connect_timeout_s, speed_m_s, max_speed_m_s, accel_m_s2, heartbeat_timeout_s, heartbeat_register)"
     )
 
 
