@@ -576,7 +576,7 @@ class DaemonConfig(Section):
     allowed_origins: list[str] = Field(default_factory=list)
     request_timeout_s: float = Field(default=10.0, gt=0, le=300)
     max_body_bytes: int = Field(default=1 << 20, ge=1024, le=64 << 20)
-    max_connections: int = Field(default=64, ge=4, le=4096)
+    max_connections: int = Field(default=512, ge=4, le=4096)
 
     @model_validator(mode="after")
     def _check_token(self) -> DaemonConfig:

@@ -1,9 +1,12 @@
-"""``weldcell serve``: the cell as a small HTTP service (stdlib ``http.server``), running jobs one at a time.
+"""``weldcell serve``: the cell as a small HTTP service (FastAPI on uvicorn, :mod:`cell.http_api`), running jobs
+one at a time.
 
-Endpoints (JSON unless said otherwise; with ``[daemon] token`` every request needs ``Authorization: Bearer <token>``,
-and the config refuses a non-loopback ``host`` without a token)::
+Endpoints (JSON unless said otherwise; ``GET /openapi.json`` describes them; with ``[daemon] token`` every request
+needs ``Authorization: Bearer <token>``, and the config refuses a non-loopback ``host`` without a token; Host,
+Origin, size and time checks in :mod:`cell.http_api`)::
 
-    POST /jobs                   body: a job's TOML text, or JSON {"path": "job.toml"} or {"toml": "..."};
+    POST /jobs                   body: a job's TOML text, or JSON {"path": "job.toml"} (in the jobs directory) or
+                                 {"toml": "..."}; checked against the cell's limits before it is queued;
                                  ?dry_run=1 (or "dry_run": true) plans and validates only -> 201 {"id", "state"}
     GET  /jobs                   the recent jobs, newest first
     GET  /jobs/{id}              one job: state, report, error and its journaled events
@@ -31,14 +34,15 @@ Without the switch these paths answer 404 and no fault switch exists in the proc
 
 Jobs wait in a FIFO queue; while the cell is in fault they wait for the acknowledgement. Everything goes to the
 journal (cell.journal); a job found queued or running when the daemon starts (it was killed) is reported as
-``interrupted`` and never resumed. :meth:`Daemon.shutdown` (SIGTERM, Ctrl-C) stops the motion and switches the arc
-off through the state machine's ``fault_now`` before anything else, cancels the queued jobs, then closes the
-devices and the journal; the arc output is then switched off once more and read back (:attr:`Daemon.arc_on_at_exit`).
+``interrupted`` and never resumed, and when one was running the cell starts in ``fault`` ("unclean stop"): no
+motion before an operator's acknowledgement. :meth:`Daemon.shutdown` (SIGTERM, Ctrl-C) stops the motion and
+switches the arc off through the state machine's ``fault_now`` before anything else, cancels the queued jobs,
+then closes the devices and the journal; the arc output is then switched off once more and read back
+(:attr:`Daemon.arc_on_at_exit`).
 """
 
 from __future__ import annotations
 
-import hmac
 import html
 import json
 import logging
@@ -48,23 +52,21 @@ import threading
 import time
 from dataclasses import dataclass
 from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
 
 from cell.config import CellConfig
 from cell.errors import ConfigError, WeldcellError
 from cell.factory import Cell, build_cell, real_devices
-from cell.job import Job, job_from_text, load_job
+from cell.http_api import HttpServer, build_app, listen
+from cell.job import FileRules, Job, job_from_text, load_job
 from cell.journal import JobRecord, Journal
 from cell.machine import PAUSABLE, CellState
 from cell.planning import WeldPath
-from cell.runner import CYCLE_PHASES, JobReport, JobRunner
+from cell.runner import CYCLE_PHASES, CellBusy, JobReport, JobRunner
 
 logger = logging.getLogger(__name__)
 
-MAX_BODY_BYTES = 1 << 20
 ACTIVE_STATES = frozenset(CellState) - {CellState.IDLE, CellState.DONE, CellState.FAULT}
 
 
@@ -113,7 +115,12 @@ class Daemon:
         dc = config.daemon
         self.journal = Journal(config.resolve(dc.journal))
         self.interrupted: tuple[JobRecord, ...] = self.journal.interrupted
-        self.jobs_dir = self.journal.path.parent / "jobs"
+        self.jobs_dir = (
+            config.resolve(dc.jobs_dir) if dc.jobs_dir is not None else self.journal.path.parent / "jobs"
+        ).resolve()
+        self.captures_dir = (
+            config.resolve(dc.captures_dir) if dc.captures_dir is not None else self.journal.path.parent / "captures"
+        ).resolve()
         self.status_image = config.resolve(dc.status_image)
         self._own_cell = cell is None
         try:
@@ -141,12 +148,25 @@ class Daemon:
         self.arc_on_at_exit: bool | None = None
         """After :meth:`shutdown`: whether the arc output read on (None: it could not be read back)."""
         self._worker = threading.Thread(target=self._work, name="weldcell-jobs", daemon=True)
-        self.server = ThreadingHTTPServer((dc.host, dc.port), _handler(self))
-        self.server.daemon_threads = True
-        self._server_thread = threading.Thread(target=self.server.serve_forever, name="weldcell-http", daemon=True)
+        try:
+            sock = listen(dc.host, dc.port)
+        except OSError:
+            if self._own_cell:
+                self.cell.close()
+            self.journal.close()
+            raise
+        self._address = sock.getsockname()[:2]
+        self.app = build_app(self, int(self._address[1]))
+        self.http = HttpServer(self.app, sock, timeout_s=dc.request_timeout_s, max_connections=dc.max_connections)
         for record in self.interrupted:
             logger.warning(
                 "job %d (%s) was interrupted by the previous daemon: not resumed", record.id, record.job_file
+            )
+        unclean = [r.id for r in self.interrupted if r.started_s is not None]
+        if unclean:  # the torch may stand on the part: nothing moves before an operator has looked
+            self.runner.machine.fault_now(
+                f"unclean stop: job {', '.join(map(str, unclean))} was running when the previous daemon stopped; "
+                "check the torch and the part, then acknowledge (POST /acknowledge)"
             )
         if self._fault_injectors is not None:
             logger.warning(
@@ -155,13 +175,13 @@ class Daemon:
 
     @property
     def address(self) -> tuple[str, int]:
-        host, port = self.server.server_address[:2]
+        host, port = self._address
         return str(host), int(port)
 
     def start(self) -> Daemon:
         limit_malloc_arenas()  # before the worker and HTTP threads exist
         self._worker.start()
-        self._server_thread.start()
+        self.http.start()
         host, port = self.address
         logger.info("weldcell daemon listening on http://%s:%d", host, port)
         return self
@@ -185,30 +205,48 @@ class Daemon:
         logger.info("job %d (%s) queued%s", job_id, job.workpiece, " (dry run)" if dry_run else "")
         return job_id
 
-    def job_from_request(self, body: bytes, content_type: str) -> tuple[Job, bool]:
-        """A job from a POST /jobs body; ConfigError for a bad one. Returns (job, dry_run from the body)."""
+    def job_from_request(self, body: bytes, content_type: str, dry_run_query: str | None = None) -> tuple[Job, bool]:
+        """A job from a POST /jobs body (ConfigError for a bad one, checked against the cell's limits). Returns
+        (job, dry_run): ``dry_run`` from the JSON body's ``"dry_run"`` (a JSON boolean) or the ``?dry_run=``
+        query (``1|true|yes`` or ``0|false|no``). Files named by the job must be inside the configured directories
+        (:attr:`jobs_dir` for job files, it or :attr:`captures_dir` for prompts files)."""
+        dry_run = parse_flag(dry_run_query, "?dry_run") if dry_run_query is not None else False
         try:
             text = body.decode("utf-8")
         except UnicodeDecodeError as err:
             raise ConfigError("the request body is not UTF-8 text") from err
-        dry_run = False
-        if "json" in content_type:
-            try:
-                obj = json.loads(text)
-            except json.JSONDecodeError as err:
-                raise ConfigError(f"the request body is not valid JSON: {err}") from err
-            if not isinstance(obj, dict) or not (("path" in obj) ^ ("toml" in obj)):
-                raise ConfigError('send {"path": "job.toml"} or {"toml": "<job text>"} (one of them)')
-            dry_run = bool(obj.get("dry_run", False))
+        rules = FileRules((self.jobs_dir, self.captures_dir), self.config.daemon.max_file_bytes)
+        if "json" in content_type.lower():
+            obj = parse_json_object(text)
+            unknown = sorted(set(obj) - {"path", "toml", "dry_run"})
+            if unknown or ("path" in obj) == ("toml" in obj):
+                raise ConfigError('send {"path": "job.toml"} or {"toml": "<job text>"} (one of them), and "dry_run"')
+            if "dry_run" in obj:
+                if not isinstance(obj["dry_run"], bool):
+                    raise ConfigError('"dry_run" must be a JSON boolean (true or false)')
+                dry_run = dry_run or obj["dry_run"]
             if "path" in obj:
-                return load_job(str(obj["path"])), dry_run
-            text = str(obj["toml"])
-        job = job_from_text(text, source="<http job>", base_dir=Path.cwd())
+                if not isinstance(obj["path"], str) or not obj["path"] or "\x00" in obj["path"]:
+                    raise ConfigError('"path" must be a file name in the jobs directory')
+                given = Path(obj["path"])
+                path = FileRules((self.jobs_dir,), rules.max_bytes).check(
+                    given if given.is_absolute() else self.jobs_dir / given, f"job file {obj['path']!r}"
+                )
+                job = load_job(path, rules=rules)
+                self.runner.check_job(job)
+                return job, dry_run
+            if not isinstance(obj["toml"], str):
+                raise ConfigError('"toml" must be the job file\'s text (a JSON string)')
+            text = obj["toml"]
+        if len(text.encode("utf-8")) > rules.max_bytes:
+            raise ConfigError(f"the job is larger than the {rules.max_bytes} bytes allowed")
         self.jobs_dir.mkdir(parents=True, exist_ok=True)
+        job = job_from_text(text, source="<http job>", base_dir=self.jobs_dir, rules=rules)
+        self.runner.check_job(job)
         name = re.sub(r"[^A-Za-z0-9_.-]+", "-", job.workpiece)[:40] or "job"
         path = self.jobs_dir / f"{time.strftime('%Y%m%d-%H%M%S')}-{time.monotonic_ns() % 10**9:09d}-{name}.toml"
         path.write_text(text, encoding="utf-8")
-        return job_from_text(text, source=str(path), base_dir=Path.cwd()), dry_run
+        return job_from_text(text, source=str(path), base_dir=self.jobs_dir, rules=rules), dry_run
 
     def _work(self) -> None:
         while True:
@@ -360,6 +398,56 @@ class Daemon:
             "sim_faults": self._fault_injectors is not None,
         }
 
+    def jobs_view(self) -> dict[str, Any]:
+        return {"jobs": [_job_view(r) for r in self.journal.recent_jobs(self.config.daemon.recent_jobs)]}
+
+    def acknowledge(self, operator: str) -> tuple[int, dict[str, Any]]:
+        """POST /acknowledge: (HTTP status, answer). Waits for the runner to finish a job that faulted."""
+        machine = self.runner.machine
+        if machine.state is not CellState.FAULT:
+            return HTTPStatus.CONFLICT, {"error": f"the cell is {machine.state.value}, not in fault"}
+        try:
+            ok = self.runner.acknowledge(operator)
+        except CellBusy as err:
+            return HTTPStatus.CONFLICT, {"error": str(err)}
+        status = HTTPStatus.OK if ok else HTTPStatus.CONFLICT
+        return status, {"state": machine.state.value, "fault_reason": machine.fault_reason}
+
+    def motion_command(self, command: str, operator: str) -> tuple[int, dict[str, Any]]:
+        """pause (motion stopped and arc off now), resume (back to the paused state), abort (retract, the job
+        ends cancelled): (HTTP status, answer); the state machine decides what is allowed."""
+        machine = self.runner.machine
+        state = machine.state
+        if command == "pause":
+            if state not in PAUSABLE:
+                return HTTPStatus.CONFLICT, {"error": f"nothing to pause: the cell is {state.value}"}
+            machine.request_pause(f"paused by {operator} over HTTP")
+            ok = machine.state is CellState.PAUSED
+        elif state is not CellState.PAUSED:
+            return HTTPStatus.CONFLICT, {"error": f"the cell is {state.value}, not paused"}
+        else:
+            ok = machine.resume() if command == "resume" else machine.abort(operator)
+        status = HTTPStatus.OK if ok else HTTPStatus.CONFLICT
+        return status, {"state": machine.state.value, "fault_reason": machine.fault_reason}
+
+    def sim_fault_command(self, path: str, body: bytes) -> dict[str, Any]:
+        """POST /sim/faults {"device", "fault", "params"} or /sim/faults/clear {"device"} (optional)."""
+        try:
+            text = body.decode("utf-8")
+        except UnicodeDecodeError as err:
+            raise ConfigError("the request body is not UTF-8 text") from err
+        obj = parse_json_object(text)
+        device = obj.get("device")
+        if path.endswith("/clear"):
+            if device is not None and not isinstance(device, str):
+                raise ConfigError('"device" must be a device name (or left out: every simulator)')
+            return {"cleared": self.clear_sim_faults(device)}
+        fault, params = obj.get("fault"), obj.get("params", {})
+        if not isinstance(device, str) or not isinstance(fault, str) or not isinstance(params, dict):
+            raise ConfigError('send {"device": "robot" | "track" | "camera", "fault": "<name>", "params": {}}')
+        self.inject_sim_fault(device, fault, params)
+        return {"device": device, "fault": fault, "params": params}
+
     def job_view(self, job_id: int) -> dict[str, Any]:
         view = _job_view(self.journal.job(job_id))
         view["events"] = [
@@ -453,8 +541,7 @@ class Daemon:
         self._queue.put(None)
         self._worker.join(timeout=30.0)
         self.arc_on_at_exit = self._confirm_arc_off()
-        self.server.shutdown()
-        self.server.server_close()
+        self.http.stop()
         if self._own_cell:
             self.cell.close()
         self.journal.close()
@@ -473,6 +560,29 @@ class Daemon:
         return on
 
 
+def parse_flag(value: str, what: str) -> bool:
+    """A query flag: ``1|true|yes`` or ``0|false|no`` (any case); ConfigError for anything else."""
+    low = value.strip().lower()
+    if low in ("1", "true", "yes"):
+        return True
+    if low in ("0", "false", "no"):
+        return False
+    raise ConfigError(f"{what} must be one of 1, true, yes, 0, false, no")
+
+
+def parse_json_object(text: str) -> dict[str, Any]:
+    """A JSON object from a request body; ConfigError for anything else (the position, never the text)."""
+    try:
+        obj = json.loads(text or "{}")
+    except json.JSONDecodeError as err:
+        raise ConfigError(f"the request body is not valid JSON (line {err.lineno}, column {err.colno})") from err
+    except RecursionError as err:
+        raise ConfigError("the request body is nested too deeply") from err
+    if not isinstance(obj, dict):
+        raise ConfigError("send a JSON object")
+    return obj
+
+
 def _job_view(record: JobRecord) -> dict[str, Any]:
     return {
         "id": record.id,
@@ -484,191 +594,6 @@ def _job_view(record: JobRecord) -> dict[str, Any]:
         "report": record.report,
         "error": record.error,
     }
-
-
-def _handler(daemon: Daemon) -> type[BaseHTTPRequestHandler]:
-    token = daemon.config.daemon.token
-
-    class Handler(BaseHTTPRequestHandler):
-        server_version = "weldcell"
-        protocol_version = "HTTP/1.1"
-
-        def log_message(self, format: str, *args: Any) -> None:
-            logger.debug("http %s: " + format, self.client_address[0], *args)
-
-        # -------------------------------------------------------------------------- plumbing
-        def _send(self, status: HTTPStatus, body: bytes, content_type: str) -> None:
-            self.send_response(status)
-            self.send_header("Content-Type", content_type)
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("Cache-Control", "no-store")
-            self.end_headers()
-            self.wfile.write(body)
-
-        def _json(self, status: HTTPStatus, obj: Any) -> None:
-            self._send(status, json.dumps(obj).encode(), "application/json")
-
-        def _error(self, status: HTTPStatus, message: str) -> None:
-            self._json(status, {"error": message})
-
-        def _authorized(self) -> bool:
-            if token is None:
-                return True
-            given = self.headers.get("Authorization", "")
-            if given.startswith("Bearer ") and hmac.compare_digest(given[7:].encode(), token.encode()):
-                return True
-            self.send_response(HTTPStatus.UNAUTHORIZED)
-            body = b'{"error": "a bearer token is required: Authorization: Bearer <token>"}'
-            self.send_header("WWW-Authenticate", 'Bearer realm="weldcell"')
-            self.send_header("Content-Type", "application/json")
-            self.send_header("Content-Length", str(len(body)))
-            self.end_headers()
-            self.wfile.write(body)
-            return False
-
-        def _body(self) -> bytes | None:
-            try:
-                length = int(self.headers.get("Content-Length", "0"))
-            except ValueError:
-                length = -1
-            if not 0 <= length <= MAX_BODY_BYTES:
-                self._error(HTTPStatus.BAD_REQUEST, f"need a Content-Length of 0..{MAX_BODY_BYTES} bytes")
-                return None
-            return self.rfile.read(length)
-
-        def _operator(self, body: bytes) -> str | None:
-            try:
-                obj = json.loads(body.decode("utf-8") or "{}")
-            except (UnicodeDecodeError, json.JSONDecodeError):
-                obj = None
-            name = obj.get("operator") if isinstance(obj, dict) else None
-            if not isinstance(name, str) or not name.strip():
-                self._error(HTTPStatus.BAD_REQUEST, 'send {"operator": "<name>"}: an operator must be named')
-                return None
-            return name.strip()
-
-        # -------------------------------------------------------------------------- routes
-        def do_GET(self) -> None:
-            if not self._authorized():
-                return
-            path = urlsplit(self.path).path
-            try:
-                if path == "/status":
-                    self._json(HTTPStatus.OK, daemon.status())
-                elif path == "/jobs":
-                    jobs = daemon.journal.recent_jobs(daemon.config.daemon.recent_jobs)
-                    self._json(HTTPStatus.OK, {"jobs": [_job_view(r) for r in jobs]})
-                elif (found := re.fullmatch(r"/jobs/(\d+)", path)) is not None:
-                    try:
-                        self._json(HTTPStatus.OK, daemon.job_view(int(found.group(1))))
-                    except KeyError:
-                        self._error(HTTPStatus.NOT_FOUND, f"no job {found.group(1)}")
-                elif path == "/sim/faults" and daemon.sim_faults:
-                    self._json(HTTPStatus.OK, daemon.sim_fault_view())
-                elif path == "/metrics":
-                    self._send(HTTPStatus.OK, daemon.metrics().encode(), "text/plain; version=0.0.4; charset=utf-8")
-                elif path == "/":
-                    self._send(HTTPStatus.OK, daemon.page().encode(), "text/html; charset=utf-8")
-                elif path == "/status.png":
-                    try:
-                        self._send(HTTPStatus.OK, daemon.status_image.read_bytes(), "image/png")
-                    except OSError:
-                        self._error(HTTPStatus.NOT_FOUND, "no capture yet")
-                else:
-                    self._error(HTTPStatus.NOT_FOUND, f"no such resource {path}")
-            except WeldcellError as err:
-                self._error(HTTPStatus.INTERNAL_SERVER_ERROR, str(err))
-
-        def do_POST(self) -> None:
-            if not self._authorized():
-                return
-            parts = urlsplit(self.path)
-            path = parts.path
-            body = self._body()
-            if body is None:
-                return
-            try:
-                if path == "/jobs":
-                    job, dry_run = daemon.job_from_request(body, self.headers.get("Content-Type", ""))
-                    query = parse_qs(parts.query)
-                    dry_run = dry_run or query.get("dry_run", ["0"])[0].lower() in ("1", "true", "yes")
-                    job_id = daemon.submit(job, dry_run=dry_run)
-                    self._json(HTTPStatus.CREATED, {"id": job_id, "state": "queued", "dry_run": dry_run})
-                elif (found := re.fullmatch(r"/jobs/(\d+)/(approve|reject)", path)) is not None:
-                    operator = self._operator(body)
-                    if operator is None:
-                        return
-                    job_id = int(found.group(1))
-                    approve = found.group(2) == "approve"
-                    if daemon.answer_approval(job_id, operator if approve else None):
-                        self._json(HTTPStatus.OK, {"id": job_id, "approved": approve, "operator": operator})
-                    else:
-                        self._error(HTTPStatus.CONFLICT, f"job {job_id} is not waiting for approval")
-                elif path in ("/pause", "/resume", "/abort"):
-                    operator = self._operator(body)
-                    if operator is None:
-                        return
-                    self._motion_command(path[1:], operator)
-                elif path in ("/sim/faults", "/sim/faults/clear") and daemon.sim_faults:
-                    self._sim_fault_command(path, body)
-                elif path == "/acknowledge":
-                    operator = self._operator(body)
-                    if operator is None:
-                        return
-                    machine = daemon.runner.machine
-                    if machine.state is not CellState.FAULT:
-                        self._error(HTTPStatus.CONFLICT, f"the cell is {machine.state.value}, not in fault")
-                        return
-                    ok = daemon.runner.acknowledge(operator)
-                    status = HTTPStatus.OK if ok else HTTPStatus.CONFLICT
-                    self._json(status, {"state": machine.state.value, "fault_reason": machine.fault_reason})
-                else:
-                    self._error(HTTPStatus.NOT_FOUND, f"no such resource {path}")
-            except ConfigError as err:
-                self._error(HTTPStatus.BAD_REQUEST, str(err))
-            except WeldcellError as err:
-                self._error(HTTPStatus.SERVICE_UNAVAILABLE, str(err))
-
-        def _sim_fault_command(self, path: str, body: bytes) -> None:
-            """POST /sim/faults {"device", "fault", "params"} or /sim/faults/clear {"device"} (optional)."""
-            try:
-                obj = json.loads(body.decode("utf-8") or "{}")
-            except (UnicodeDecodeError, json.JSONDecodeError) as err:
-                raise ConfigError(f"the request body is not valid JSON: {err}") from err
-            if not isinstance(obj, dict):
-                raise ConfigError('send a JSON object: {"device": ..., "fault": ..., "params": {...}}')
-            device = obj.get("device")
-            if path.endswith("/clear"):
-                if device is not None and not isinstance(device, str):
-                    raise ConfigError('"device" must be a device name (or left out: every simulator)')
-                self._json(HTTPStatus.OK, {"cleared": daemon.clear_sim_faults(device)})
-                return
-            fault, params = obj.get("fault"), obj.get("params", {})
-            if not isinstance(device, str) or not isinstance(fault, str) or not isinstance(params, dict):
-                raise ConfigError('send {"device": "robot" | "track" | "camera", "fault": "<name>", "params": {}}')
-            daemon.inject_sim_fault(device, fault, params)
-            self._json(HTTPStatus.OK, {"device": device, "fault": fault, "params": params})
-
-        def _motion_command(self, command: str, operator: str) -> None:
-            """pause (motion stopped and arc off now), resume (back to the paused state), abort (retract, the job
-            ends cancelled): the state machine decides what is allowed."""
-            machine = daemon.runner.machine
-            state = machine.state
-            if command == "pause":
-                if state not in PAUSABLE:
-                    self._error(HTTPStatus.CONFLICT, f"nothing to pause: the cell is {state.value}")
-                    return
-                machine.request_pause(f"paused by {operator} over HTTP")
-                ok = machine.state is CellState.PAUSED
-            elif state is not CellState.PAUSED:
-                self._error(HTTPStatus.CONFLICT, f"the cell is {state.value}, not paused")
-                return
-            else:
-                ok = machine.resume() if command == "resume" else machine.abort(operator)
-            status = HTTPStatus.OK if ok else HTTPStatus.CONFLICT
-            self._json(status, {"state": machine.state.value, "fault_reason": machine.fault_reason})
-
-    return Handler
 
 
 # ---------------------------------------------------------------------------------------------- memory

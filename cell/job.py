@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -95,14 +96,54 @@ class JobFile(Section):
 
 
 @dataclass(frozen=True)
+class FileRules:
+    """Where a job may name files, for jobs from an untrusted client (the HTTP service): every file must resolve
+    (symlinks followed) inside one of ``roots`` and be a regular file of at most ``max_bytes``. Errors name the rule
+    and never quote a file's contents; a path outside the roots is refused before anything looks at it, so an
+    error cannot tell whether it exists."""
+
+    roots: tuple[Path, ...]
+    max_bytes: int = 1 << 20
+
+    def check(self, path: Path, what: str) -> Path:
+        """``path`` resolved, or ConfigError naming the rule it breaks."""
+        resolved = Path(os.path.realpath(path))
+        roots = [Path(os.path.realpath(r)) for r in self.roots]
+        if not any(resolved.is_relative_to(root) for root in roots):
+            raise ConfigError(
+                f"{what}: files must lie inside the configured directories ({', '.join(map(str, roots))}); "
+                "this one does not"
+            )
+        try:
+            st = resolved.stat()
+        except OSError as err:
+            raise ConfigError(f"{what}: no readable file there ({err.strerror or 'cannot stat'})") from err
+        if not stat.S_ISREG(st.st_mode):
+            raise ConfigError(f"{what}: not a regular file")
+        if st.st_size > self.max_bytes:
+            raise ConfigError(f"{what}: {st.st_size} bytes, more than the {self.max_bytes} bytes allowed")
+        return resolved
+
+
+def _read_bounded(path: Path, max_bytes: int | None) -> bytes:
+    with path.open("rb") as f:
+        data = f.read() if max_bytes is None else f.read(max_bytes + 1)
+    if max_bytes is not None and len(data) > max_bytes:
+        raise ConfigError(f"{path}: more than the {max_bytes} bytes allowed")
+    return data
+
+
+@dataclass(frozen=True)
 class Job:
     """A validated job: ``spec`` (the file's content), ``source`` (the file, or a label for a job sent as text),
-    ``base_dir`` (where relative prompt files are looked up) and the original ``text``."""
+    ``base_dir`` (where relative prompt files are looked up) and the original ``text``; ``rules``: where it may
+    name files (None: anywhere, for a local operator's ``weldcell run``)."""
 
     spec: JobFile
     source: str
     base_dir: Path
     text: str
+    rules: FileRules | None = None
 
     @property
     def workpiece(self) -> str:
@@ -120,15 +161,20 @@ class Job:
         value = self.captures[index].prompts
         if value in (PROMPTS_FROM_CAMERA, PROMPTS_AUTOMATIC):
             return None
-        path = Path(value).expanduser()
-        path = path if path.is_absolute() else self.base_dir / path
         key = self.where(f"capture[{index}].prompts")
+        path = Path(value) if self.rules is not None else Path(value).expanduser()
+        path = path if path.is_absolute() else self.base_dir / path
+        if self.rules is not None:
+            path = self.rules.check(path, f"{key} ({value})")
         try:
-            obj = json.loads(path.read_text(encoding="utf-8"))
+            raw = _read_bounded(path, self.rules.max_bytes if self.rules is not None else None)
+            obj = json.loads(raw.decode("utf-8"))
         except OSError as err:
             raise ConfigError(f"{key}: cannot read the prompts file {path}: {err.strerror or err}") from err
-        except (UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise ConfigError(f"{key}: the prompts file {path} is not valid JSON: {err}") from err
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+            # the decoder's position only: its message could quote the file
+            where = f" (line {err.lineno}, column {err.colno})" if isinstance(err, json.JSONDecodeError) else ""
+            raise ConfigError(f"{key}: the prompts file {path} is not valid JSON{where}") from err
         points = obj.get("prompts_px", obj.get("points")) if isinstance(obj, dict) else obj
         try:
             arr = np.asarray(points, dtype=np.float64)
@@ -139,32 +185,50 @@ class Job:
         return arr
 
 
-def load_job(path: str | os.PathLike[str]) -> Job:
-    """Read and validate a job file; every problem raises :class:`ConfigError` naming the file and the key."""
+def load_job(path: str | os.PathLike[str], *, rules: FileRules | None = None) -> Job:
+    """Read and validate a job file; every problem raises :class:`ConfigError` naming the file and the key.
+    ``rules``: where the file (and the prompts files it names) may be (None: anywhere); with rules, no error
+    quotes the file's text."""
     file = Path(path)
+    if rules is not None:
+        file = rules.check(file, f"job file {path}")
     try:
-        text = file.read_bytes().decode("utf-8")
+        text = _read_bounded(file, rules.max_bytes if rules is not None else None).decode("utf-8")
     except FileNotFoundError as err:
         raise ConfigError(f"{file}: job file does not exist") from err
     except OSError as err:
         raise ConfigError(f"{file}: cannot read job file: {err.strerror or err}") from err
     except UnicodeDecodeError as err:
         raise ConfigError(f"{file}: not UTF-8 text (is it really a TOML job file?)") from err
-    return job_from_text(text, source=str(file), base_dir=file.resolve().parent)
+    return job_from_text(text, source=str(file), base_dir=file.resolve().parent, rules=rules, quote=rules is None)
 
 
-def job_from_text(text: str, *, source: str = "<job>", base_dir: str | os.PathLike[str] | None = None) -> Job:
-    """Validate a job given as TOML text (``source`` names it in messages, ``base_dir`` resolves prompt files)."""
+def job_from_text(
+    text: str,
+    *,
+    source: str = "<job>",
+    base_dir: str | os.PathLike[str] | None = None,
+    rules: FileRules | None = None,
+    quote: bool = True,
+) -> Job:
+    """Validate a job given as TOML text (``source`` names it in messages, ``base_dir`` resolves prompt files,
+    ``rules`` confines them). ``quote``: a TOML error may show the offending line (not for a file read on an
+    untrusted client's behalf)."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{source}: malformed TOML: {_toml_context(err, text)}") from err
+        detail = _toml_context(err, text) if quote else str(err)
+        raise ConfigError(f"{source}: malformed TOML: {detail}") from err
+    except RecursionError as err:
+        raise ConfigError(f"{source}: the TOML is nested too deeply to be a job file") from err
     try:
         spec = JobFile.model_validate(data)
     except ValidationError as err:
         problems = "; ".join(describe_validation_error(e, JobFile) for e in err.errors(include_url=False))
         raise ConfigError(f"{source}: {problems}") from err
-    job = Job(spec, source, Path(base_dir) if base_dir is not None else Path.cwd(), text)
+    except RecursionError as err:
+        raise ConfigError(f"{source}: the job is nested too deeply") from err
+    job = Job(spec, source, Path(base_dir) if base_dir is not None else Path.cwd(), text, rules)
     for i, _capture in enumerate(job.captures):
         job.prompts_px(i)  # a missing or malformed prompts file is a bad job, found before anything moves
     return job

@@ -69,7 +69,8 @@ def wait_for(check: Callable[[], Any], *, timeout_s: float, what: str) -> Any:
 def finished_job(base: str, job_id: int) -> dict[str, Any] | None:
     """The job's view once it is final and its report is stored (the report follows the last state change)."""
     view = request(f"{base}/jobs/{job_id}")[1]
-    return view if view["state"] in ("done", "failed", "cancelled") and view["report"] is not None else None
+    final = ("done", "failed", "cancelled", "dry_run")
+    return view if view["state"] in final and view["report"] is not None else None
 
 
 def settled_status(base: str) -> dict[str, Any] | None:
@@ -328,8 +329,15 @@ def submit_and_wait_for_the_arc(base: str, sims: Simulators) -> int:
         f"{base}/jobs", method="POST", body=job_text(min_length_m=0.1, travel_speed_m_s=0.05).encode()
     )
     assert status == 201, answer
-    wait_for(lambda: sims.robot.digital_output(1), timeout_s=30, what="arc on")
-    return int(answer["id"])
+    job_id = int(answer["id"])
+
+    def arc_on() -> bool:
+        view = request(f"{base}/jobs/{job_id}")[1]
+        assert view["state"] in ("queued", "running"), view  # a job that ended before the arc: say why
+        return bool(sims.robot.digital_output(1))
+
+    wait_for(arc_on, timeout_s=30, what="arc on")
+    return job_id
 
 
 @pytest.mark.timeout(60)
@@ -357,32 +365,51 @@ def test_sigterm_while_welding_stops_the_motion_and_leaves_the_arc_off(
         assert record.state == "failed" and record.error is not None and "SIGTERM" in record.error
 
 
-@pytest.mark.timeout(60)
-def test_a_daemon_killed_mid_job_reports_it_interrupted_on_restart_and_does_not_resume_it(
+@pytest.mark.timeout(120)
+def test_a_daemon_killed_mid_weld_leaves_the_arc_off_and_restarts_in_fault_until_acknowledged(
     sims: tuple[Path, CellConfig, Simulators],
 ) -> None:
     path, config, running = sims
+    fanuc = running.robot
     served = Served(path)
     try:
         served.wait_line("listening on", timeout_s=30)
         base = f"http://127.0.0.1:{config.daemon.port}"
         job_id = submit_and_wait_for_the_arc(base, running)
+        t_kill = time.monotonic()
         served.proc.kill()  # SIGKILL: no chance to clean up
+        # the controller's heartbeat watchdog (WC_HBEAT on the fake FANUC) switches the arc off, not the host
+        wait_for(lambda: not fanuc.digital_output(1), timeout_s=1.0, what="arc off after kill -9")
+        arc_off_s = time.monotonic() - t_kill
+        assert arc_off_s < 1.0
         served.proc.wait(timeout=10)
     finally:
         served.close()
+    position = fanuc.xyzwpr_mm_deg()
     restarted = Served(path)
     try:
         assert f"job {job_id}" in restarted.wait_line("was interrupted", timeout_s=30)
         base = f"http://127.0.0.1:{config.daemon.port}"
         wait_for(lambda: request(f"{base}/status")[0] == 200, timeout_s=10, what="the restarted daemon")
-        assert not running.robot.digital_output(1)  # the restarted daemon switched the arc off first
+        assert not fanuc.digital_output(1)
         st = request(f"{base}/status")[1]
-        assert st["state"] == "idle" and st["current_job"] is None and st["queued"] == []
+        # an unclean stop: the cell starts in fault, and nothing moves before an operator has acknowledged
+        assert st["state"] == "fault" and "unclean stop" in st["fault_reason"] and str(job_id) in st["fault_reason"]
+        assert st["current_job"] is None and st["queued"] == []
         assert [j["id"] for j in st["interrupted"]] == [job_id]
         assert job_state(base, job_id) == "interrupted"
-        time.sleep(0.5)
-        assert job_state(base, job_id) == "interrupted" and request(f"{base}/status")[1]["current_job"] is None
+        status, answer = request(f"{base}/jobs?dry_run=1", method="POST", body=job_text().encode())
+        assert status == 201, answer
+        waiting = int(answer["id"])
+        time.sleep(1.0)
+        assert job_state(base, waiting) == "queued"
+        assert fanuc.xyzwpr_mm_deg() == position  # not a millimetre
+        t_ack = time.time()
+        status, answer = request(f"{base}/acknowledge", method="POST", body=b'{"operator": "ann"}')
+        assert status == 200 and answer["state"] == "idle", answer
+        # now it runs (a dry run from where the torch stands, on the part: it finds no depth there, which is fine)
+        view = wait_for(lambda: finished_job(base, waiting), timeout_s=60, what="the job after acknowledging")
+        assert view["started_s"] >= t_ack - 0.5 and view["report"]["dry_run"] is True
     finally:
         restarted.proc.send_signal(signal.SIGTERM)
         restarted.proc.wait(timeout=20)
