@@ -328,8 +328,22 @@ class Daemon:
             "devices": {
                 role: {"supported": sorted(handle.supported_faults), "injected": injected.get(role, [])}
                 for role, handle in injectors.items()
-            }
+            },
+            "arc_output_on": self._simulated_arc_on(injectors.get("robot")),
         }
+
+    def _simulated_arc_on(self, robot: Any) -> bool | None:
+        """The arc output as the simulated controller itself holds it (not as the driver reports it): what an
+        independent reader of the controller's outputs sees. None: unknown."""
+        index = self.runner.arc_output
+        try:
+            if hasattr(robot, "digital_output"):  # the fake FANUC: DO[index + 1]
+                return bool(robot.digital_output(index + 1))
+            if hasattr(robot, "snapshot"):  # the fake UR, through its process's control pipe
+                return bool(robot.snapshot()["digital_outputs"][index])
+        except (RuntimeError, TimeoutError, OSError, ValueError, IndexError, KeyError):
+            return None
+        return None
 
     def inject_sim_fault(self, device: str, fault: str, params: dict[str, Any]) -> None:
         """Switch ``fault`` of the simulated ``device`` on. ConfigError for an unknown device, fault or parameter."""

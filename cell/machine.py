@@ -421,7 +421,8 @@ class CellMachine:
                 if pending is not None:
                     reason = f"{pending[1]} (then {reason})"
                 logger.error("%s: %s", self.name, reason)
-                self._model.trigger("fail", reason=reason)
+                # a pending fault_now has attempted the stop and the arc-off already
+                self._model.trigger("fail", reason=reason, stopped=pending is not None and pending[0] == "fault")
         if not isinstance(err, Exception):  # KeyboardInterrupt, SystemExit: stopped safely, now let them through
             raise err
 

@@ -15,8 +15,13 @@ journal names it):
   operator runs the part again; it also brings the robot home for the dry runs);
 - every --fault-every-th job is a fault, in turn from --faults: ``camera_timeout`` (the camera stops sending
   frames before the job), ``connection_drop`` (the robot controller drops its connection before the job),
-  ``protective_stop`` and ``track_fault`` (injected once the arc of a welding job is on), ``unreachable_pose``
-  (a capture pose 3 m away: the job is refused) and ``malformed`` (a bad job file: answered 400, no record).
+  ``protective_stop`` and ``track_fault`` (injected once the arc of a welding job is on), ``no_answer`` and
+  ``link_drop_arc`` (the robot controller stops answering / drops its connection once the arc is on: the cell
+  must be in fault within 1 s and the simulated controller's own arc output, read through ``GET /sim/faults``,
+  must read off within 1 s: its heartbeat watchdog, docs/controller-watchdogs.md), ``unreachable_pose`` (a
+  capture pose 3 m away: refused at submission with a 400 naming the reach limit), ``malformed`` (a bad job
+  file: answered 400, no record) and ``hostile`` (in turn: a job path outside the jobs directory, a cross-origin
+  POST, a 5000-deep nested body, a 2 MiB body, a string ``dry_run``: each its 4xx naming the rule, no record).
 
 Faults reach the simulators inside the daemon through its test-only ``/sim/faults`` endpoint (only served with
 ``--sim-faults``, which the daemon refuses unless every device is a simulator it started itself). Jobs queue behind
@@ -74,11 +79,24 @@ DEFAULT_FAULTS = (
     "track_fault",
     "protective_stop",
     "connection_drop",
+    "no_answer",
     "unreachable_pose",
+    "link_drop_arc",
     "malformed",
+    "hostile",
+)
+ARC_OFF_WITHIN_S = 1.0
+"""After no_answer or a dropped link with the arc on, the simulated controller must read the arc off within this."""
+HOSTILE = (  # (path, headers, body, expected status, a piece of the error)
+    ("/jobs", {"Content-Type": "application/json"}, b'{"path": "/etc/passwd"}', 400, "configured directories"),
+    ("/jobs", {"Content-Type": "application/json"}, b'{"path": "../../../etc/shadow"}', 400, "configured directories"),
+    ("/acknowledge", {"Origin": "http://evil.example"}, b'{"operator": "mallory"}', 403, "cross-origin"),
+    ("/jobs", {"Content-Type": "application/toml"}, b"a = " + b"[" * 5000 + b"]" * 5000, 400, "nested too deeply"),
+    ("/jobs", {"Content-Type": "application/toml"}, b"#" * (2 << 20), 413, "larger than"),
+    ("/jobs", {"Content-Type": "application/json"}, b'{"toml": "workpiece = 1", "dry_run": "false"}', 400, "boolean"),
 )
 OPERATOR = "soak"
-FINAL_JOB_STATES = ("done", "failed", "cancelled", "interrupted")
+FINAL_JOB_STATES = ("done", "failed", "cancelled", "dry_run", "interrupted")
 
 
 # ================================================================================================ the plan
@@ -111,8 +129,14 @@ FAULTS: dict[str, FaultKind] = {
         FaultKind(
             "track_fault", "track", "track_fault", {"code": 0x7310}, "arc_on", True, "failed", "fault", "fault latched"
         ),
-        FaultKind("unreachable_pose", None, None, {}, "never", False, "failed", "refused", "beyond the reach radius"),
+        FaultKind("unreachable_pose", None, None, {}, "never", False, "", None, "[safety] reach_radius_m"),
         FaultKind("malformed", None, None, {}, "never", False, "", None, ""),
+        # the controller stops answering / the host link drops while the arc is on: a fault within a second,
+        # and the controller's own heartbeat watchdog switches the arc off (read from the simulator itself)
+        FaultKind("no_answer", "robot", "no_answer", {}, "arc_on", True, "failed", "fault", "ConnectionLost|no status"),
+        FaultKind("link_drop_arc", "robot", "drop_connection", {}, "arc_on", True, "failed", "fault", "ConnectionLost"),
+        # hostile requests (files outside the jobs directory, cross-origin, oversized, deep nesting): 4xx, no job
+        FaultKind("hostile", None, None, {}, "never", False, "", None, ""),
     )
 }
 
@@ -336,9 +360,16 @@ class Client:
         self.base = base
         self.headers = {"Authorization": f"Bearer {token}"} if token else {}
 
-    def call(self, method: str, path: str, body: bytes | None = None, content_type: str = "application/json") -> Any:
+    def call(
+        self,
+        method: str,
+        path: str,
+        body: bytes | None = None,
+        content_type: str = "application/json",
+        extra_headers: dict[str, str] | None = None,
+    ) -> Any:
         """(status, decoded JSON body)."""
-        headers = dict(self.headers)
+        headers = {**self.headers, **(extra_headers or {})}
         if body is not None:
             headers["Content-Type"] = content_type
         req = urllib.request.Request(self.base + path, data=body, method=method, headers=headers)
@@ -405,6 +436,9 @@ class SoakResult:
     rss_floor_start: Sample | None = None
     rss_floor_end: Sample | None = None
     rss_growth_mib: float = 0.0
+    hostile_ok: int = 0
+    arc_off_s: dict[str, list[float]] = field(default_factory=dict)
+    fault_s: dict[str, list[float]] = field(default_factory=dict)
 
     @property
     def accepted(self) -> list[Submission]:
@@ -461,7 +495,10 @@ class DaemonSoak:
             if fault is not None and fault.when == "idle":
                 self.drain()  # the fault must hit this job, not one queued before it
                 self.inject(fault)
-            self.submit(planned)
+            if planned.kind == "hostile":
+                self.hostile(planned)
+            else:
+                self.submit(planned)
             self.operate()
         self.drain()
 
@@ -475,9 +512,23 @@ class DaemonSoak:
             self.outstanding.append(sub)
         else:
             sub = Submission(planned, status, None, error)
-            if planned.kind != "malformed":
+            if planned.fault is None or planned.fault.outcome is not None:
                 self.fail(f"job {planned.index} ({planned.kind}): POST /jobs answered {status}: {error}")
         self.result.submissions.append(sub)
+
+    def hostile(self, planned: PlannedJob) -> None:
+        """One hostile request (in turn from HOSTILE): it must get its 4xx, naming the rule, and queue nothing."""
+        path, headers, body, want, words = HOSTILE[planned.occurrence % len(HOSTILE)]
+        status, answer = self.client.call(
+            "POST", path, body, content_type=headers.get("Content-Type", "text/plain"), extra_headers=headers
+        )
+        error = answer.get("error", "") if isinstance(answer, dict) else str(answer)
+        sub = Submission(planned, status, None, error)
+        self.result.submissions.append(sub)
+        if status != want or words not in error or "root:" in error:
+            self.fail(f"job {planned.index} (hostile {path}): want {want} naming {words!r}, got {status} {error!r}")
+        else:
+            self.result.hostile_ok += 1
 
     def inject(self, fault: FaultKind) -> None:
         status, answer = self.client.post(
@@ -510,6 +561,8 @@ class DaemonSoak:
                     if any(e["reason"].endswith(": arc on") for e in events):
                         self.inject(fault)
                         sub.injected = True
+                        if fault.name in ("no_answer", "link_drop_arc"):
+                            self.watch_arc_off(sub)
         while self.outstanding:
             sub = self.outstanding[0]
             view = self.client.get(f"/jobs/{sub.job_id}")
@@ -523,6 +576,28 @@ class DaemonSoak:
             self.outstanding.popleft()
             sub.view = view
             self.job_finished(sub)
+
+    def watch_arc_off(self, sub: Submission) -> None:
+        """After the link to the controller went away with the arc on: the simulated controller's own arc output
+        (GET /sim/faults, the fake's state, not the driver's) must read off within ARC_OFF_WITHIN_S, and the cell
+        must be in fault within 1 s."""
+        t0 = time.monotonic()
+        arc_off_s = fault_s = None
+        while time.monotonic() - t0 < 5.0 and (arc_off_s is None or fault_s is None):
+            view = self.client.get("/sim/faults")
+            now = time.monotonic() - t0
+            if arc_off_s is None and not view.get("arc_output_on", True):
+                arc_off_s = now
+            if fault_s is None and self.client.get("/status")["state"] == "fault":
+                fault_s = now
+            time.sleep(0.02)
+        kind = sub.planned.kind
+        self.result.arc_off_s.setdefault(kind, []).append(arc_off_s if arc_off_s is not None else math.inf)
+        self.result.fault_s.setdefault(kind, []).append(fault_s if fault_s is not None else math.inf)
+        if arc_off_s is None or arc_off_s > ARC_OFF_WITHIN_S:
+            self.fail(f"job {sub.planned.index} ({kind}): the controller's arc output read on {arc_off_s} s after")
+        if fault_s is None or fault_s > ARC_OFF_WITHIN_S:
+            self.fail(f"job {sub.planned.index} ({kind}): the cell was in fault only after {fault_s} s")
 
     def job_finished(self, sub: Submission) -> None:
         self.finished += 1
@@ -570,6 +645,12 @@ class DaemonSoak:
                 if not ok:
                     self.fail(f"job {p.index} (malformed): want a 4xx naming the problem, got {sub.status} {sub.error}")
                 continue
+            if p.kind == "hostile":
+                continue  # checked as it was sent
+            if f is not None and f.outcome is None:  # refused at submission (a job over the cell's limits)
+                if not (400 <= sub.status < 500 and f.error in (sub.error or "")):
+                    self.fail(f"job {p.index} ({p.kind}): want a 4xx naming {f.error!r}, got {sub.status} {sub.error}")
+                continue
             if sub.job_id is None:
                 continue  # already failed at submission
             view = self.client.get(f"/jobs/{sub.job_id}")
@@ -579,13 +660,13 @@ class DaemonSoak:
             if f is not None:
                 want = (f.state, f.outcome)
             else:
-                want = ("done", "welded") if p.weld else ("cancelled", "dry_run")
+                want = ("done", "welded") if p.weld else ("dry_run", "dry_run")
             got = (view["state"], report.get("outcome"))
             expected_outcomes[str(want[1])] += 1
             where = f"job {p.index} (id {sub.job_id}, {p.kind})"
             if got != want:
                 self.fail(f"{where}: want {want}, got {got}: {view.get('error')}")
-            elif f is not None and f.error.lower() not in (view.get("error") or "").lower():
+            elif f is not None and not any(w.lower() in (view.get("error") or "").lower() for w in f.error.split("|")):
                 self.fail(f"{where}: the error does not say {f.error!r}: {view.get('error')}")
             elif p.weld and f is None and not report.get("seams_welded"):
                 self.fail(f"{where}: welded no seam: {report}")
@@ -778,6 +859,13 @@ def print_summary(result: SoakResult, out: TextIO = sys.stdout) -> None:
     for kind, counts in sorted(result.outcomes_by_kind().items()):
         p(f"    {kind:<17} {sum(counts.values()):3d}  {dict(counts)}")
     p(f"  faults injected {result.injected}, acknowledged {result.acknowledged}")
+    for kind in sorted(result.arc_off_s):
+        arcs, faults = result.arc_off_s[kind], result.fault_s.get(kind, [])
+        p(
+            f"    {kind}: arc off (the controller's output) after {', '.join(f'{t:.2f}' for t in arcs)} s; "
+            f"cell in fault after {', '.join(f'{t:.2f}' for t in faults)} s"
+        )
+    p(f"  hostile requests answered as they must: {result.hostile_ok}")
     p(
         f"  records: API {result.api_records}/{len(result.accepted)}; SQLite {result.db_rows} rows "
         f"({len(result.accepted)} jobs{' + the SIGTERM probe' if result.probe_id is not None else ''}), "

@@ -1,7 +1,8 @@
 """scripts/soak.py: the plan of the daemon soak, and a reduced soak through `weldcell serve --sim-faults`.
 
 The full soak (100 jobs, welds and every fault kind, about 20 minutes) is run by hand; this one runs the same code
-path with six submissions (three of them faults) in a few seconds.
+path with ten submissions (five of them faults, the controller going silent with the arc on among them) in about
+a minute.
 """
 
 from __future__ import annotations
@@ -25,21 +26,29 @@ def test_the_default_plan_has_a_fault_every_seventh_job_and_welds_again_after_th
     plan = soak.plan_jobs(100, fault_every=7, weld_every=10, faults=soak.DEFAULT_FAULTS)
     assert [p.index for p in plan] == list(range(1, 101))
     faults = [(p.index, p.kind) for p in plan if p.fault is not None]
-    assert faults[:6] == [
+    assert faults == [
         (7, "camera_timeout"),
         (14, "track_fault"),
         (21, "protective_stop"),
         (28, "connection_drop"),
-        (35, "unreachable_pose"),
-        (42, "malformed"),
+        (35, "no_answer"),
+        (42, "unreachable_pose"),
+        (49, "link_drop_arc"),
+        (56, "malformed"),
+        (63, "hostile"),
+        (70, "camera_timeout"),
+        (77, "track_fault"),
+        (84, "protective_stop"),
+        (91, "connection_drop"),
+        (98, "no_answer"),
     ]
-    assert len(faults) == 14 and faults[-1] == (98, "track_fault")
     welds = [p.index for p in plan if p.kind == "weld"]
-    # every 10th (70 is a fault), and the job after each fault injected once the arc is on
-    assert welds == [10, 15, 20, 22, 30, 40, 50, 57, 60, 64, 80, 90, 99, 100]
-    assert collections.Counter(p.kind for p in plan)["dry"] == 72
-    assert all(p.weld == (p.kind in ("weld", "track_fault", "protective_stop")) for p in plan)
-    assert [p.occurrence for p in plan if p.kind == "malformed"] == [0, 1]
+    # every 10th (70 is a fault), and the job after each fault injected once the arc is on (50 is a 10th anyway)
+    assert welds == [10, 15, 20, 22, 30, 36, 40, 50, 60, 78, 80, 85, 90, 99, 100]
+    assert collections.Counter(p.kind for p in plan)["dry"] == 100 - 14 - 15
+    arc_on = ("track_fault", "protective_stop", "no_answer", "link_drop_arc")
+    assert all(p.weld == (p.kind in ("weld", *arc_on)) for p in plan)
+    assert [p.occurrence for p in plan if p.kind == "no_answer"] == [0, 1]
     with pytest.raises(ValueError, match="unknown fault kinds"):
         soak.plan_jobs(10, fault_every=2, weld_every=0, faults=("earthquake",))
 
@@ -58,43 +67,55 @@ def test_the_job_variants_are_named_for_the_journal_and_break_as_planned() -> No
     assert "welding_parameters" in tomllib.loads(texts[4])  # the first: a table no job file has
 
 
-@pytest.mark.timeout(40)
-def test_six_submissions_with_three_faults_through_the_daemon_end_as_planned_and_are_journaled_once(
+@pytest.mark.timeout(240)
+def test_ten_submissions_with_five_faults_through_the_daemon_end_as_planned_and_are_journaled_once(
     tmp_path: Path,
 ) -> None:
     out = io.StringIO()
     result = soak.run_daemon_soak(
         config=EXAMPLES / "sim-cell-fanuc.toml",
         job=EXAMPLES / "jobs" / "ribs.toml",
-        jobs=6,
+        jobs=10,
         fault_every=2,
         weld_every=0,
-        faults=("connection_drop", "malformed", "unreachable_pose"),
+        faults=("connection_drop", "malformed", "unreachable_pose", "hostile", "no_answer"),
         warmup=2,
-        rss_bound_mib=200.0,  # six jobs show no leak (the first ones move RSS by tens of MiB): the full soak does
+        rss_bound_mib=200.0,  # ten jobs show no leak (the first ones move RSS by tens of MiB): the full soak does
         sigterm_mid_weld=False,
         every=1,
-        stall_s=20.0,
+        stall_s=90.0,
         workdir=str(tmp_path),
         out=out,
     )
     assert result.failures == [], out.getvalue()
     kinds = [s.planned.kind for s in result.submissions]
-    assert kinds == ["dry", "connection_drop", "dry", "malformed", "dry", "unreachable_pose"]
+    # (no_answer last: the weld that reruns the part after it would take another minute)
+    assert kinds == [
+        "dry", "connection_drop", "dry", "malformed", "dry", "unreachable_pose", "dry", "hostile", "dry", "no_answer"
+    ]  # fmt: skip
     assert {kind: dict(n) for kind, n in result.outcomes_by_kind().items()} == {
-        "dry": {"dry_run": 3},
+        "dry": {"dry_run": 5},
         "connection_drop": {"fault": 1},
         "malformed": {"http 400": 1},
-        "unreachable_pose": {"refused": 1},
+        "unreachable_pose": {"http 400": 1},  # over the reach: refused at submission, before it is queued
+        "no_answer": {"fault": 1},
+        "hostile": {"http 400": 1},
     }
     malformed = result.submissions[3]
     assert malformed.job_id is None and "welding_parameters: unknown key" in (malformed.error or "")
+    far = result.submissions[5]
+    assert far.job_id is None and "[safety] reach_radius_m" in (far.error or "")
+    # the controller went silent with the arc on: its own watchdog switched the arc off, the cell faulted, fast
+    [arc_off_s] = result.arc_off_s["no_answer"]
+    [fault_s] = result.fault_s["no_answer"]
+    assert arc_off_s < 1.0 and fault_s < 1.0
+    assert result.hostile_ok == 1
     # one record per accepted job, through the API and in the SQLite file, each started once
-    assert (len(result.accepted), result.api_records, result.db_rows, result.db_started_once) == (5, 5, 5, 5)
-    assert (result.injected, result.acknowledged) == (1, 2)  # the refused job needs an acknowledgement too
-    assert [s.finished for s in result.samples] == [1, 2, 3, 4, 5]
+    assert (len(result.accepted), result.api_records, result.db_rows, result.db_started_once) == (7, 7, 7, 7)
+    assert (result.injected, result.acknowledged) == (2, 2)
+    assert [s.finished for s in result.samples] == [1, 2, 3, 4, 5, 6, 7]  # dry runs 1, 3, 5, 7, 9 and faults 2, 10
     assert all(s.rss_mib > 50 and s.threads > 3 for s in result.samples)
-    assert result.idle_samples and result.idle_samples[-1].finished == 5
+    assert result.idle_samples and result.idle_samples[-1].finished == 7
     assert (result.exit_code, result.arc_line) == (0, "arc output 0 reads off")
     log = (tmp_path / "daemon.log").read_text(encoding="utf-8")
     assert "test fault injected into the simulated robot: drop_connection" in log
