@@ -555,12 +555,13 @@ class DaemonConfig(Section):
     """``[daemon]`` (``weldcell serve``): bind ``host`` (default 127.0.0.1) and ``port``; ``token``: the bearer token
     every request must carry (required when ``host`` is not a loopback address; at least 16 characters);
     ``journal``: the SQLite journal; ``status_image``: where the last capture overlay is written (PNG).
-    ``jobs_dir`` (default: ``jobs`` next to the journal) and ``captures_dir`` (default: ``captures`` next to the
-    journal): the only folders a job sent over HTTP may name files in (``{"path": ...}`` job files in ``jobs_dir``,
-    prompts files in either); ``max_file_bytes``: the largest such file read. ``allowed_hosts``: further names the
-    ``Host`` header may carry (loopback names and ``host`` always may); ``allowed_origins``: further browser origins
-    (``http://name:port``) allowed to POST; ``request_timeout_s``: a request's head and body must arrive within
-    it; ``max_body_bytes``; ``max_connections`` served at once. Relative paths are relative to the config file's
+    ``jobs_dir`` (default: ``jobs`` next to the journal, where the jobs sent as text are kept) and ``captures_dir``
+    (default: ``captures`` next to the journal): the only folders a job sent over HTTP may name files in
+    (``{"path": ...}`` job files in ``jobs_dir``, prompts files in either or among the kept jobs);
+    ``max_file_bytes``: the largest such file read. ``allowed_hosts``: further names the ``Host`` header may carry
+    (loopback names and ``host`` always may); ``allowed_origins``: further browser origins (``http://name:port``)
+    allowed to POST; ``request_timeout_s``: a request's head and body must arrive within it; ``max_body_bytes``;
+    ``max_connections`` served at once. Relative paths are relative to the config file's
     folder."""
 
     host: str = Field(default="127.0.0.1", min_length=1)

@@ -115,9 +115,8 @@ class Daemon:
         dc = config.daemon
         self.journal = Journal(config.resolve(dc.journal))
         self.interrupted: tuple[JobRecord, ...] = self.journal.interrupted
-        self.jobs_dir = (
-            config.resolve(dc.jobs_dir) if dc.jobs_dir is not None else self.journal.path.parent / "jobs"
-        ).resolve()
+        self.submitted_dir = (self.journal.path.parent / "jobs").resolve()  # copies of the jobs sent as text
+        self.jobs_dir = config.resolve(dc.jobs_dir).resolve() if dc.jobs_dir is not None else self.submitted_dir
         self.captures_dir = (
             config.resolve(dc.captures_dir) if dc.captures_dir is not None else self.journal.path.parent / "captures"
         ).resolve()
@@ -209,13 +208,15 @@ class Daemon:
         """A job from a POST /jobs body (ConfigError for a bad one, checked against the cell's limits). Returns
         (job, dry_run): ``dry_run`` from the JSON body's ``"dry_run"`` (a JSON boolean) or the ``?dry_run=``
         query (``1|true|yes`` or ``0|false|no``). Files named by the job must be inside the configured directories
-        (:attr:`jobs_dir` for job files, it or :attr:`captures_dir` for prompts files)."""
+        (:attr:`jobs_dir` for job files, it, :attr:`captures_dir` or :attr:`submitted_dir` for prompts files); a
+        job sent as text is kept in :attr:`submitted_dir` (``jobs`` next to the journal), never in jobs_dir."""
         dry_run = parse_flag(dry_run_query, "?dry_run") if dry_run_query is not None else False
         try:
             text = body.decode("utf-8")
         except UnicodeDecodeError as err:
             raise ConfigError("the request body is not UTF-8 text") from err
-        rules = FileRules((self.jobs_dir, self.captures_dir), self.config.daemon.max_file_bytes)
+        roots = tuple(dict.fromkeys((self.jobs_dir, self.captures_dir, self.submitted_dir)))
+        rules = FileRules(roots, self.config.daemon.max_file_bytes)
         if "json" in content_type.lower():
             obj = parse_json_object(text)
             unknown = sorted(set(obj) - {"path", "toml", "dry_run"})
@@ -240,11 +241,11 @@ class Daemon:
             text = obj["toml"]
         if len(text.encode("utf-8")) > rules.max_bytes:
             raise ConfigError(f"the job is larger than the {rules.max_bytes} bytes allowed")
-        self.jobs_dir.mkdir(parents=True, exist_ok=True)
         job = job_from_text(text, source="<http job>", base_dir=self.jobs_dir, rules=rules)
         self.runner.check_job(job)
+        self.submitted_dir.mkdir(parents=True, exist_ok=True)
         name = re.sub(r"[^A-Za-z0-9_.-]+", "-", job.workpiece)[:40] or "job"
-        path = self.jobs_dir / f"{time.strftime('%Y%m%d-%H%M%S')}-{time.monotonic_ns() % 10**9:09d}-{name}.toml"
+        path = self.submitted_dir / f"{time.strftime('%Y%m%d-%H%M%S')}-{time.monotonic_ns() % 10**9:09d}-{name}.toml"
         path.write_text(text, encoding="utf-8")
         return job_from_text(text, source=str(path), base_dir=self.jobs_dir, rules=rules), dry_run
 
