@@ -73,6 +73,8 @@ S = CellState
 
 AUTO_APPROVER = "auto (job approval = false)"
 FINAL_STATES = (S.DONE, S.FAULT, S.IDLE)
+MOTION_STATES = (S.HOMING, S.MOVING_TO_CAPTURE, S.WELDING, S.RETRACTING)
+"""States whose work moves the robot (or has the arc on): the watchdog's answer deadline applies in these."""
 CYCLE_PHASES = ("capture", "detection", "planning", "motion")
 MAX_DWELL_S = 10.0
 """The longest arc-on or arc-off dwell a job may ask for."""
@@ -172,8 +174,9 @@ class JobRunner:
     """Runs jobs on ``cell`` (its drivers connected by :meth:`connect` or already connected), journaling to
     ``journal``. ``on_progress``: see :data:`Progress`. ``status_image``: where the overlay of the last capture is
     written (PNG; None: not written). ``watchdog_period_s``: how often the watchdog polls the devices;
-    ``answer_timeout_s``: a device whose status has not come back within this long is a fault (the poll runs in a
-    thread of its own, so a device that hangs cannot hold the watchdog up)."""
+    ``answer_timeout_s``: while the robot moves (:data:`MOTION_STATES`), a device whose status has not come back
+    within this long is a fault (the poll runs in a thread of its own, so a device that hangs cannot hold the
+    watchdog up)."""
 
     def __init__(
         self,
@@ -817,9 +820,13 @@ class JobRunner:
             while not self._watchdog_stop.wait(self.watchdog_period_s):
                 if self.machine.state in (*FINAL_STATES, S.PAUSED) or self._watchdog_fired:
                     continue
+                # the deadline applies while something moves or the arc may be on; while capturing, detecting or
+                # planning this process's own computing can hold the GIL for longer than that (the drivers' own
+                # timeouts still end a poll that gets no answer)
+                limit = self.answer_timeout_s if self.machine.state in MOTION_STATES else None
                 poll = poller.submit(self._device_problem)
                 try:
-                    problem = poll.result(timeout=self.answer_timeout_s)
+                    problem = poll.result(timeout=limit)
                 except concurrent.futures.TimeoutError:
                     problem = f"no status from the robot or the track within {self.answer_timeout_s:.1f} s"
                 except Exception as err:  # a bug in a driver's status path must still stop the cell

@@ -333,7 +333,7 @@ def submit_and_wait_for_the_arc(base: str, sims: Simulators) -> int:
 
     def arc_on() -> bool:
         view = request(f"{base}/jobs/{job_id}")[1]
-        assert view["state"] in ("queued", "running"), view  # a job that ended before the arc: say why
+        assert view["state"] in ("queued", "running"), view["error"]  # a job that ended before the arc: why
         return bool(sims.robot.digital_output(1))
 
     wait_for(arc_on, timeout_s=30, what="arc on")
