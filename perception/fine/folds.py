@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.fine.runs import covered_runs
+from perception.fine.surfaces import axis_basis
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
 
 
@@ -35,6 +36,15 @@ def _line_of(a: Surface, b: Surface, near: FloatArray) -> tuple[FloatArray, Floa
     A = np.vstack([a.normal, b.normal, u])
     rhs = np.array([-a.offset, -b.offset, float(u @ near)])
     return np.linalg.solve(A, rhs), u
+
+
+def contact_points(p: FloatArray, labels: NDArray[np.int32], pair: Pair) -> tuple[FloatArray, FloatArray]:
+    """The (N, 3) points of surface ``pair.a`` and of ``pair.b`` among the pair's contact pixels."""
+    ys, xs = pair.contact_px[:, 0], pair.contact_px[:, 1]
+    la = labels[ys, xs]
+    pa = p[ys[la == pair.a], xs[la == pair.a]]
+    pb = p[ys[la == pair.b], xs[la == pair.b]]
+    return pa[np.isfinite(pa[:, 2])], pb[np.isfinite(pb[:, 2])]
 
 
 def joint_type(na: FloatArray, nb: FloatArray, up: FloatArray, standing_height_m: float, lap_height_m: float) -> Joint:
@@ -68,11 +78,7 @@ def fold_seams(
         if pair.a in support or pair.b in support:
             continue
         A, B = surfaces.surfaces[pair.a], surfaces.surfaces[pair.b]
-        ys, xs = pair.contact_px[:, 0], pair.contact_px[:, 1]
-        la = lab[ys, xs]
-        pa = p[ys[la == A.label], xs[la == A.label]]
-        pb = p[ys[la == B.label], xs[la == B.label]]
-        pa, pb = pa[np.isfinite(pa[:, 2])], pb[np.isfinite(pb[:, 2])]
+        pa, pb = contact_points(p, lab, pair)
         if len(pa) < 5 or len(pb) < 5:
             continue
         if A.kind == "plane" and B.kind == "plane":
@@ -146,9 +152,7 @@ def _line_coords(q: FloatArray, p0: FloatArray, u: FloatArray) -> tuple[FloatArr
 def ring_points(P: Surface, C: Surface, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Points where the cylinder's rulings at angles ``theta`` meet the plane, and the radial unit normals."""
     a = C.axis
-    e1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(a, e1)
+    e1, e2 = axis_basis(a)
     radial = np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2
     q = C.centre + C.radius * radial
     t = -(q @ P.normal + P.offset) / float(P.normal @ a)

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from perception.capture import CameraIntrinsics
 from perception.fine.folds import ring_points
 from perception.fine.runs import covered_runs
-from perception.fine.surfaces import _fit_plane
+from perception.fine.surfaces import _fit_plane, axis_basis, circle_across
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
 
 
@@ -248,24 +248,14 @@ def _refine_ring(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
         n = n if n @ P.normal > 0 else -n
         P = replace(P, normal=n, offset=-float(n @ q[on_p].mean(axis=0)))
         # the cylinder: axis kept (from the whole surface), centre and radius refitted on the points here
-        a = C.axis
-        e1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(a, e1)
         qc = q[on_c]
-        x, y = qc @ e1, qc @ e2
-        M = np.column_stack([x, y, np.ones_like(x)])
-        sol, *_ = np.linalg.lstsq(M, x * x + y * y, rcond=None)
-        cx, cy = sol[0] / 2, sol[1] / 2
-        r2 = sol[2] + cx * cx + cy * cy
-        if r2 <= 0:
+        circle = circle_across(qc, C.axis)
+        if circle is None:
             return s
-        C = replace(C, centre=cx * e1 + cy * e2 + float(np.mean(qc @ a)) * a, radius=float(np.sqrt(r2)))
+        centre, radius = circle
+        C = replace(C, centre=centre + float(np.mean(qc @ C.axis)) * C.axis, radius=radius)
     # the same arc, on the refined surfaces
-    a = C.axis
-    e1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(a, e1)
+    e1, e2 = axis_basis(C.axis)
     rel = s.points - C.centre
     theta = np.unwrap(np.arctan2(rel @ e2, rel @ e1))
     ring, radial = ring_points(P, C, theta)

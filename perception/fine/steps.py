@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
+from perception.fine.folds import contact_points
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
 
@@ -51,9 +52,7 @@ def step_seams(
         A, B = surfaces.surfaces[pair.a], surfaces.surfaces[pair.b]
         if A.kind != "plane" or B.kind != "plane" or float(A.normal @ B.normal) < np.cos(sp.max_angle_rad):
             continue
-        ys, xs = pair.contact_px[:, 0], pair.contact_px[:, 1]
-        la = lab[ys, xs]
-        pa, pb = p[ys[la == A.label], xs[la == A.label]], p[ys[la == B.label], xs[la == B.label]]
+        pa, pb = contact_points(p, lab, pair)
         if len(pa) < 10 or len(pb) < 10:
             continue
         # upper: the plane on the camera side of the other by a plate's thickness

@@ -163,13 +163,11 @@ def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatA
     if perp.sum() >= 20:
         _w2, v2 = np.linalg.eigh(nm[perp].T @ nm[perp] / perp.sum())
         axis = v2[:, 0]
-    start = _circle_across(p[ok][perp] if perp.sum() >= 20 else p, axis)
+    start = circle_across(p[ok][perp] if perp.sum() >= 20 else p, axis)
     if start is None:
         return None
     centre, r = start
-    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis, e1)
+    e1, e2 = axis_basis(axis)
     q = p[:: max(1, len(p) // 4000)]
     scale = max(r, 1e-3)
 
@@ -199,11 +197,16 @@ def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatA
     return a, c, r, float(np.sqrt(np.mean(res**2)))
 
 
-def _circle_across(p: FloatArray, axis: FloatArray) -> tuple[FloatArray, float] | None:
-    """Centre (on the plane across ``axis`` through the origin) and radius of an algebraic circle fit."""
+def axis_basis(axis: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Two unit vectors (e1, e2) that make a right-handed frame with the unit ``axis`` (e1 x e2 = axis)."""
     e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis, e1)
+    return e1, np.cross(axis, e1)
+
+
+def circle_across(p: FloatArray, axis: FloatArray) -> tuple[FloatArray, float] | None:
+    """Centre (on the plane across ``axis`` through the origin) and radius of an algebraic circle fit."""
+    e1, e2 = axis_basis(axis)
     x, y = p @ e1, p @ e2
     A = np.column_stack([x, y, np.ones_like(x)])
     sol, *_ = np.linalg.lstsq(A, x * x + y * y, rcond=None)
