@@ -74,3 +74,47 @@ def test_bench_zoo_refuses_an_unknown_family() -> None:
     out = subprocess.run([sys.executable, "-m", "cell.cli", "bench", "zoo", "--families", "teapot"],
                          capture_output=True, text=True, timeout=60, check=False)  # fmt: skip
     assert out.returncode == 2 and "teapot" in out.stdout
+
+
+def test_errors_are_measured_to_the_whole_seam_and_the_stretch_beyond_the_seen_run_is_overreach(
+    cache: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import perception.detect as detect_mod
+    from perception.evaluate import resample_polyline
+    from perception.transforms import transform_points
+
+    folder = ensure_capture(cache, "ribs", 5)  # its rib1 fillet is hidden for its first 21 mm
+    meta = json.loads((folder / "zoo.json").read_text())
+    X = load_capture(folder).X_base_camera  # detections come in the base frame when the capture has a pose
+    ((k, truth),) = [(k, t) for k, t in enumerate(meta["truth"]) if t["name"] == "base/rib1@0.0"]
+    seen = np.asarray(truth["points_camera"])
+    whole = np.asarray(meta["seams"][truth["seam_index"]]["points_camera"])
+    u = (seen[-1] - seen[0]) / np.linalg.norm(seen[-1] - seen[0])
+    hidden = float(np.min(np.abs((whole[[0, -1]] - seen[0]) @ u)))
+    assert hidden > 0.018
+    side = np.cross(u, [0.0, 0.0, 1.0])
+    side /= np.linalg.norm(side)
+    others = [np.asarray(t["points_camera"]) for j, t in enumerate(meta["truth"]) if j != k]
+
+    class Found:
+        def __init__(self, *paths: np.ndarray) -> None:
+            paths = tuple(resample_polyline(p, 0.005) for p in paths)  # path points every 5 mm, as detect's
+            self.seams = [type("S", (), {"points": p if X is None else transform_points(X, p)})() for p in paths]
+
+    def score(*paths: np.ndarray) -> CaptureScore:
+        monkeypatch.setattr(detect_mod, "detect", lambda *_a, **_k: Found(*paths, *others))
+        return score_capture(folder)[0]
+
+    exact = score(seen)
+    assert exact.found == 3 and exact.false_seams == 0 and exact.max_mm < 1e-6 and exact.overreach_mm == 0.0
+    # 15 mm on into the hidden stretch, along the weldment's seam: not an error in position, but overreach
+    longer = np.vstack([seen[0] - 0.015 * u, seen[-1]])
+    s = score(longer)
+    assert s.found == 3 and s.max_mm < 1e-6 and s.overreach_mm == pytest.approx(15.0 - 3.0, abs=1.5)  # 3 mm band
+    assert s.max_seen_mm == pytest.approx(15.0, abs=0.1)
+    # 2 mm to the side: 2 mm off both the seen run and the whole seam
+    off = score(seen + 0.002 * side)
+    assert off.max_mm == pytest.approx(2.0, abs=0.05) and off.max_seen_mm == pytest.approx(2.0, abs=0.05)
+    # far from every seam of the weldment: false
+    far = score(seen + 0.05 * side)
+    assert far.false_seams == 1 and far.unseen_seams == 0 and far.found == 2
