@@ -886,12 +886,13 @@ def detect_surfaces(
     them at 1280x720), and only bands around the candidate seams are read at full resolution (the share
     of points left out is ``info["removed_share"]``). Prompts and the image segmenter are not used yet
     (``segmenter`` is accepted for the same signature as :func:`detect`); the table is told apart by
-    geometry. Steps: noise -> surfaces -> support -> adjacency -> folds, gaps -> full-resolution
+    geometry. Steps: noise -> surfaces -> support -> adjacency -> folds, gaps, grooves -> full-resolution
     refinement -> inner gaps, steps -> view clip.
     """
     from perception.fine.adjacency import adjacent_pairs
     from perception.fine.folds import fold_seams
     from perception.fine.gaps import gap_seams, inner_gap_seams
+    from perception.fine.grooves import groove_seams
     from perception.fine.noise import estimate_noise, local_planes
     from perception.fine.refine import refine_seams
     from perception.fine.steps import step_seams
@@ -932,10 +933,14 @@ def detect_surfaces(
         curves = fold_seams(work, surf, pairs, noise, support=support)
     with log.step("gaps"):
         curves += gap_seams(work, surf, pairs, noise, support=support)
+    noise_full = NoiseModel(noise.sigma_1m_m, noise.floor_m, noise.pixel_angle_rad / factor)
+    with log.step("grooves"):
+        grooves, surf = groove_seams(work, surf, noise, organized, capture.intrinsics, noise_full, support=support)
+        # a groove whose bevels were segmented is already a fold between them
+        curves += [g for g in grooves if not _duplicates(g, curves, within_m=0.004)]
     log.counts["candidates"] = len(curves)
     t_coarse = time.perf_counter() - t0
     with log.step("refine"):
-        noise_full = NoiseModel(noise.sigma_1m_m, noise.floor_m, noise.pixel_angle_rad / factor)
         curves, used = refine_seams(curves, organized, capture.intrinsics, surf, noise_full)
     log.counts["cropped"] = used
     with log.step("inner_gaps"):

@@ -2,12 +2,15 @@
 
     organized cloud (work resolution)
       -> noise.estimate_noise        local plane residuals: sigma(z) and the sample spacing of this capture
-      -> surfaces.segment_surfaces   planes and cylinders with their support (thresholds from the noise)
+      -> surfaces.segment_surfaces   planes and cylinders with their support (thresholds from the noise);
+                                     strips of a thin pipe that the fold test cut apart become its cylinder
       -> support.find_support        the table (or fixture plane) the workpiece stands on
       -> adjacency.adjacent_pairs    surfaces that come near each other (across blurred or unsampled corners)
       -> folds.fold_seams            concave folds: plane x plane lines, plane x cylinder rings, clipped to
                                      where both surfaces have support; open roots (V-groove gaps)
       -> gaps.gap_seams              butt gaps: coplanar surfaces whose facing boundaries run parallel
+      -> grooves.groove_seams        V-grooves with bevels too thin to segment: the trough between two
+                                     plates, each bevel fitted on its cross-section at full resolution
       -> steps.step_seams            laps and steps: an upper plate's edge dropped onto the lower plate
       -> refine.refine_seams         both surfaces refitted on full-resolution points near the seam
       -> visibility.clip_to_view     kept where both faces are seen at under 75 degrees, in runs >= 20 mm

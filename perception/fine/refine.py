@@ -147,10 +147,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
     ea = float(np.percentile(da[all_a], 2))
     eb = float(np.percentile(db[all_b], 2))
     gap = 0.0
-    # near a closed corner each face's nearest points are lost in the other's noise: only a shortfall beyond
-    # that is an open root
-    zone = 3.0 * float(np.median(sig)) + 2.0 * float(np.median(spacing))
-    if min(ea, eb) > max(rp.open_root_m, zone):
+    if _open_root(q, line0, u, va, vb, a, b, ea, eb, sig, spacing, (p0, p1), rp):
         edge_a, edge_b = line0 + ea * va, line0 + eb * vb
         gap = float(np.linalg.norm(edge_b - edge_a))
         line0 = 0.5 * (edge_a + edge_b)
@@ -162,6 +159,36 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
                                                 (q[on_b] @ b.normal + b.offset) ** 2]))))  # fmt: skip
     return replace(s, points=ends, normals_a=np.tile(a.normal, (2, 1)), normals_b=np.tile(b.normal, (2, 1)),
                    support=int(on_a.sum() + on_b.sum()), rms_m=rms, gap_m=gap)  # fmt: skip
+
+
+def _open_root(q: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray, vb: FloatArray, a: Surface,
+               b: Surface, ea: float, eb: float, sig: FloatArray, spacing: FloatArray,
+               ends: tuple[FloatArray, FloatArray], rp: RefineParams) -> bool:  # fmt: skip
+    """Whether both faces stop short of their intersection because the root is open (a V-groove's root gap).
+    Near a closed corner each face's nearest points come within about a sample of it; stopping short alone
+    may also be missing data (a stereo shadow, the root hidden by a bevel), so an open root also needs points
+    seen through it: between the two faces' edges and behind the chord that joins them, along a good part
+    of the seam."""
+    s_typ, sp_typ = float(np.median(sig)), float(np.median(spacing))
+    if min(ea, eb) <= max(rp.open_root_m, 3.0 * s_typ + 0.5 * sp_typ):
+        return False
+    edge_a, edge_b = line0 + ea * va, line0 + eb * vb
+    chord = edge_b - edge_a
+    half = 0.5 * float(np.linalg.norm(chord))
+    x = chord / max(2.0 * half, 1e-12)
+    out = a.normal + b.normal  # out of the groove, towards the camera side of both faces
+    out -= (out @ u) * u
+    out /= max(float(np.linalg.norm(out)), 1e-12)
+    rel = q - 0.5 * (edge_a + edge_b)
+    off_both = (np.abs(a.residual(q)) > 3.0 * sig) & (np.abs(b.residual(q)) > 3.0 * sig)
+    through = (np.abs(rel @ x) < half) & off_both & (rel @ out < sig)
+    t0, t1 = sorted(float((e - line0) @ u) for e in ends)
+    step = 2.0 * rp.end_bin_m
+    bins = max(1, int(np.ceil((t1 - t0) / step)))
+    k = np.floor(((q[through] - line0) @ u - t0) / step).astype(int)
+    hit = np.zeros(bins, bool)
+    hit[k[(k >= 0) & (k < bins)]] = True
+    return bool(hit.mean() >= 0.3)
 
 
 def _face_sigma(res: FloatArray, sig: FloatArray, side: NDArray[np.bool_]) -> FloatArray:

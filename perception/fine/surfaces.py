@@ -15,7 +15,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -304,28 +304,20 @@ def segment_surfaces(
             surfaces.append(Surface(lab, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc))
             labels.reshape(-1)[idx[inl]] = lab
             continue
-        cyl = fit_cylinder(q, pn[idx])
-        if cyl is not None and 0.003 < cyl[2] < 1.0:
-            axis, centre, r, _ = cyl
-            trial = Surface(-1, "cylinder", np.zeros(3), 0.0, 0.0, 0, q.mean(axis=0), zc, axis=axis, centre=centre,
-                            radius=r)  # fmt: skip
-            cres = np.abs(trial.residual(q))
-            inl = cres <= tol
-            if inl.mean() >= 0.6 and inl.sum() >= sp.min_pixels and _two_dimensional(q[inl], spacing_c, sp):
-                lab = len(surfaces)
-                crms = float(np.sqrt(np.mean(cres[inl] ** 2)))
-                surfaces.append(Surface(lab, "cylinder", np.zeros(3), 0.0, crms, int(inl.sum()), q[inl].mean(axis=0),
-                                        zc, axis=axis, centre=centre, radius=r))  # fmt: skip
-                labels.reshape(-1)[idx[inl]] = lab
-                rest = np.flatnonzero(~inl)
-                if len(rest) >= sp.min_pixels:
-                    for sub in _ransac_planes(q[rest], tol[rest], sp.min_pixels, rng, pixels=idx[rest], width=w):
-                        if _two_dimensional(q[rest][sub], spacing_c, sp):
-                            nrm, d, rms = _fit_plane(q[rest][sub])
-                            lab = len(surfaces)
-                            surfaces.append(Surface(lab, "plane", nrm, d, rms, len(sub), q[rest][sub].mean(axis=0), zc))
-                            labels.reshape(-1)[idx[rest][sub]] = lab
-                continue
+        found = _try_cylinder(q, pn[idx], tol, len(surfaces), zc, spacing_c, 0.6, sp.min_pixels, sp)
+        if found is not None:
+            cyl_surface, inl = found
+            surfaces.append(cyl_surface)
+            labels.reshape(-1)[idx[inl]] = cyl_surface.label
+            rest = np.flatnonzero(~inl)
+            if len(rest) >= sp.min_pixels:
+                for sub in _ransac_planes(q[rest], tol[rest], sp.min_pixels, rng, pixels=idx[rest], width=w):
+                    if _two_dimensional(q[rest][sub], spacing_c, sp):
+                        nrm, d, rms = _fit_plane(q[rest][sub])
+                        lab = len(surfaces)
+                        surfaces.append(Surface(lab, "plane", nrm, d, rms, len(sub), q[rest][sub].mean(axis=0), zc))
+                        labels.reshape(-1)[idx[rest][sub]] = lab
+            continue
         # several planes joined across soft edges (a plate's top, its edge face and the table): split them
         for sub in _ransac_planes(q, tol, sp.min_pixels, rng, pixels=idx, width=w):
             if not _two_dimensional(q[sub], spacing_c, sp):
@@ -338,16 +330,48 @@ def segment_surfaces(
     # narrow faces (a bevel, a lap plate's edge, seen a few pixels wide) lose their middle to the fold cuts
     # of both their edges; what is left between the grown surfaces is fitted again on its own
     n_before = len(surfaces)
-    labels = _recover_narrow(p, labels, surfaces, sigma, noise, sp)
+    labels = _recover_narrow(p, labels, surfaces, sigma, noise, sp, planes.normal)
     if len(surfaces) > n_before:
         labels = _grow(p, labels, surfaces, sigma, sp)
     labels, surfaces = _merge_coplanar(p, labels, surfaces, noise, sp)
+    n_before = len(surfaces)
+    labels, surfaces = _merge_cylinders(p, labels, surfaces, planes.normal, sigma, noise, sp)
+    if len(surfaces) < n_before:
+        labels = _grow(p, labels, surfaces, sigma, sp)
     return SurfaceSet(labels, factor, tuple(surfaces))
 
 
+def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: int, zc: float, spacing: float,
+                  min_share: float, min_points: int,
+                  sp: SurfaceParams) -> tuple[Surface, NDArray[np.bool_]] | None:  # fmt: skip
+    """A cylinder through most of ``q`` (at least ``min_share`` within ``tol``), labelled ``label``, and its
+    inliers; None when none fits or its radius is implausible (3 mm to 1 m)."""
+    sel = np.ones(len(q), bool)
+    for _ in range(3):  # refitted on its own points: other faces in ``q`` (a plate, a cap) pull the first fit
+        cyl = fit_cylinder(q[sel], normals[sel])
+        if cyl is None or not 0.003 < cyl[2] < 1.0:
+            return None
+        axis, centre, r, _ = cyl
+        trial = Surface(-1, "cylinder", np.zeros(3), 0.0, 0.0, 0, q.mean(axis=0), zc, axis=axis, centre=centre,
+                        radius=r)  # fmt: skip
+        cres = np.abs(trial.residual(q))
+        inl = cres <= tol
+        if inl.mean() >= min_share:
+            break
+        sel = cres <= max(float(np.percentile(cres, 60)), float(np.median(tol)))
+        if sel.sum() < max(min_points, 20):
+            return None
+    if inl.mean() < min_share or inl.sum() < min_points or not _two_dimensional(q[inl], spacing, sp):
+        return None
+    crms = float(np.sqrt(np.mean(cres[inl] ** 2)))
+    return replace(trial, label=label, rms_m=crms, n_points=int(inl.sum()), centroid=q[inl].mean(axis=0)), inl
+
+
 def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
-                    noise: NoiseModel, sp: SurfaceParams) -> NDArray[np.int32]:  # fmt: skip
-    """Planes fitted to the connected pieces of valid pixels that no surface took (appends to ``surfaces``)."""
+                    noise: NoiseModel, sp: SurfaceParams, normals: FloatArray) -> NDArray[np.int32]:  # fmt: skip
+    """Planes fitted to the connected pieces of valid pixels that no surface took (appends to ``surfaces``);
+    a piece no plane fits may be a cylinder: a pipe of small radius seen from afar turns so fast that the
+    fold cuts take all of it."""
     import cv2
 
     free = (np.isfinite(p[..., 2]) & (labels < 0)).astype(np.uint8)
@@ -368,9 +392,17 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
                 break
             nrm, d, rms = _fit_plane(q[inl])
         inl = np.abs(q @ nrm + d) <= tol
-        if inl.mean() < 0.85 or inl.sum() < sp.narrow_min_pixels:
-            continue
         spacing = float(noise.spacing_m(zc))
+        if inl.mean() < 0.85:
+            found = _try_cylinder(
+                q, normals.reshape(-1, 3)[idx], tol, len(surfaces), zc, spacing, 0.7, sp.min_pixels, sp
+            )
+            if found is not None and _turns(found[0], q[found[1]], sp.cylinder_min_turn_rad):
+                surfaces.append(found[0])
+                lab.reshape(-1)[idx[found[1]]] = found[0].label
+            continue
+        if inl.sum() < sp.narrow_min_pixels:
+            continue
         c_ = q[inl] - q[inl].mean(axis=0)
         w = np.linalg.eigvalsh(c_.T @ c_ / len(c_))
         if np.sqrt(max(w[1], 0.0)) < sp.narrow_min_width_px * spacing:
@@ -379,6 +411,15 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
         surfaces.append(Surface(k, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc))
         lab.reshape(-1)[idx[inl]] = k
     return lab
+
+
+def _turns(c: Surface, q: FloatArray, min_turn_rad: float) -> bool:
+    """Whether the points of cylinder ``c`` span at least ``min_turn_rad`` around its axis."""
+    e1, e2 = axis_basis(c.axis)
+    rel = q - c.centre
+    ang = np.sort(np.arctan2(rel @ e2, rel @ e1))
+    gaps = np.diff(np.concatenate([ang, [ang[0] + 2 * np.pi]]))
+    return bool(2 * np.pi - gaps.max() >= min_turn_rad)
 
 
 def _grow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
@@ -415,6 +456,96 @@ def _grow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sig
             break
         lab[take] = best_lab[take]
     return lab
+
+
+def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], normals: FloatArray,
+                     sigma: FloatArray, noise: NoiseModel,
+                     sp: SurfaceParams) -> tuple[NDArray[np.int32], list[Surface]]:  # fmt: skip
+    """Neighbouring planes that are strips of one cylinder become that cylinder. A pipe of small radius seen
+    from afar turns so fast that the fold test cuts it into strips a few pixels wide, each flat within the
+    noise: neighbours whose normals differ by less than a fold and whose union one cylinder fits are one."""
+    from perception.fine.adjacency import adjacent_pairs
+
+    plane_ids = [s.label for s in surfaces if s.kind == "plane"]
+    if len(plane_ids) < 2:
+        return labels, surfaces
+    z_typ = float(np.median([s.z_m for s in surfaces]))
+    pairs = adjacent_pairs(SurfaceSet(labels, 1, tuple(surfaces)), noise, reach_m=4.0 * float(noise.spacing_m(z_typ)))
+    parent = {k: k for k in plane_ids}
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    lo_cos, hi_cos = np.cos(np.radians(60.0)), np.cos(sp.merge_angle_rad)
+    for pr in pairs:
+        A, B = surfaces[pr.a], surfaces[pr.b]
+        if A.kind != "plane" or B.kind != "plane" or not lo_cos < float(A.normal @ B.normal) < hi_cos:
+            continue
+        # strips of one convex (or one concave) surface: each lies behind (or in front of) the other's plane
+        sa, sb = float(A.residual(B.centroid[None])[0]), float(B.residual(A.centroid[None])[0])
+        if sa * sb <= 0:
+            continue
+        parent[find(pr.b)] = find(pr.a)
+    groups: dict[int, list[int]] = {}
+    for k in plane_ids:
+        groups.setdefault(find(k), []).append(k)
+    flat = labels.reshape(-1)
+    new_surfaces = list(surfaces)
+    gone: set[int] = set()
+    lab = labels.copy()
+    for members in groups.values():
+        if len(members) < 2:
+            continue
+        idx = np.flatnonzero(np.isin(flat, members))
+        q = p.reshape(-1, 3)[idx]
+        zc = float(np.median(q[:, 2]))
+        tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
+        found = _try_cylinder(q, normals.reshape(-1, 3)[idx], tol, len(new_surfaces), zc,
+                              float(noise.spacing_m(zc)), 0.85, sp.min_pixels, sp)  # fmt: skip
+        if found is None or not _turns(found[0], q[found[1]], sp.cylinder_min_turn_rad):
+            continue
+        new_surfaces.append(found[0])
+        lab.reshape(-1)[idx] = -1
+        lab.reshape(-1)[idx[found[1]]] = found[0].label
+        gone.update(members)
+    # pieces of one pipe (strips on either side of a highlight or a cap's rim) share its axis and radius
+    cyl_ids = [s.label for s in new_surfaces if s.kind == "cylinder" and s.label not in gone]
+    for i, a in enumerate(cyl_ids):
+        for b in cyl_ids[i + 1 :]:
+            if a in gone or b in gone:
+                continue
+            A, B = new_surfaces[a], new_surfaces[b]
+            if abs(float(A.axis @ B.axis)) < np.cos(np.radians(10.0)):
+                continue
+            big, small = (A, B) if A.n_points >= B.n_points else (B, A)
+            q_small = p.reshape(-1, 3)[lab.reshape(-1) == small.label]
+            if float(np.median(np.abs(big.residual(q_small)))) > max(
+                3.0 * float(noise.sigma_m(small.z_m)), 3.0 * big.rms_m
+            ):
+                continue  # the larger piece's cylinder does not run through the smaller one
+            idx = np.flatnonzero(np.isin(lab.reshape(-1), [a, b]))
+            q = p.reshape(-1, 3)[idx]
+            zc = float(np.median(q[:, 2]))
+            tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
+            found = _try_cylinder(q, normals.reshape(-1, 3)[idx], tol, len(new_surfaces), zc,
+                                  float(noise.spacing_m(zc)), 0.85, sp.min_pixels, sp)  # fmt: skip
+            if found is None:
+                continue
+            new_surfaces.append(found[0])
+            lab.reshape(-1)[idx] = -1
+            lab.reshape(-1)[idx[found[1]]] = found[0].label
+            gone.update((a, b))
+            cyl_ids.append(found[0].label)
+    if not gone:
+        return labels, surfaces
+    keep = [s for s in new_surfaces if s.label not in gone]
+    remap = np.full(len(new_surfaces) + 1, -1, np.int32)
+    for k, s in enumerate(keep):
+        remap[s.label] = k
+    return remap[lab], [replace(s, label=k) for k, s in enumerate(keep)]
 
 
 def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], noise: NoiseModel,

@@ -12,7 +12,7 @@ from perception.fine.surfaces import segment_surfaces
 from perception.fine.types import NoiseModel, SurfaceSet
 from perception.transforms import make_X
 from sim_fakes.contacts import fold_seams
-from sim_fakes.hull import box_corners
+from sim_fakes.hull import box_corners, prism
 from sim_fakes.render import RenderResult, StereoSensor, render
 from sim_fakes.scenes import CameraSetup, Part, Scene, SeamDef
 
@@ -39,10 +39,11 @@ def tee() -> Scene:
     return scene_of((base, web), eye=(-0.32, -0.10, 0.30))
 
 
-def pipe(radius: float = 0.04) -> Scene:
+def pipe(radius: float = 0.04, *, view_scale: float = 1.0) -> Scene:
+    """A pipe standing on a 10 mm plate, seen from 0.48 m (times ``view_scale``)."""
     base = hull("base", box_corners(0.26, 0.26, 0.010))
     cyl = Part("pipe", "cylinder", (radius, radius, 0.10), make_X(np.eye(3), [0.0, 0.0, 0.010]), (0.5, 0.5, 0.5))
-    return scene_of((base, cyl), eye=(-0.05, -0.34, 0.34))
+    return scene_of((base, cyl), eye=(-0.05 * view_scale, -0.34 * view_scale, 0.34 * view_scale))
 
 
 def butt(gap: float = 0.002) -> Scene:
@@ -64,9 +65,39 @@ def lap(*, behind: bool = False) -> Scene:
     return scene_of((lower, upper), eye=eye, target=(0.0, 0.02, 0.0))
 
 
+def v_groove(*, gap: float = 0.0, root: float = 0.0) -> Scene:
+    """Two 12 mm plates with 30-degree bevels (from the vertical) meeting at a V, its root ``root`` above
+    the plates' bottom, with a ``gap`` between their root faces; seen from 0.6 m, so that each bevel is a
+    strip about five pixels wide."""
+    t, beta, w, length = 0.012, np.radians(30.0), 0.10, 0.20
+    run = (t - root) * np.tan(beta)
+
+    def section(sign: float) -> np.ndarray:
+        pts = [[-w, 0.0], [-gap / 2, 0.0]] + ([[-gap / 2, root]] if root > 0 else []) + [[-gap / 2 - run, t], [-w, t]]
+        sec = np.array(pts) * [sign, 1.0]
+        return sec if sign > 0 else sec[::-1]
+
+    left = hull("left", prism(section(1.0), length))
+    right = hull("right", prism(section(-1.0), length))
+    cam = CameraSetup(eye=(0.12, -0.30, 0.52), target=(0.0, 0.0, 0.0), width=640, height=360, fx=460.0, fy=460.0)
+    faces = []
+    for part, nx in ((left, np.cos(beta)), (right, -np.cos(beta))):
+        n = np.array([nx, 0.0, np.sin(beta)])
+        faces.append(int(np.argmax([f.normal @ n for f in part.hull_world.faces])))  # type: ignore[union-attr]
+    up_l = np.tile([-np.sin(beta), 0.0, np.cos(beta)], (2, 1))
+    up_r = up_l * [-1.0, 1.0, 1.0]
+    bevel = (t - root) / np.cos(beta)
+    x = np.array([1.0, 0.0, 0.0])
+    seam = SeamDef("v_groove", "linear", np.array([[0.0, -length / 2, root], [0.0, length / 2, root]]),
+                   ((1, faces[0]), (2, faces[1])), up_l, up_r, gap_m=gap, joint="v_groove", reach_a_m=bevel,
+                   reach_b_m=bevel, across_a=-x, across_b=x)  # fmt: skip
+    return Scene("test", "", (TABLE, left, right), (seam,), cam)
+
+
 @cache
 def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
-    sc = {"tee": tee, "pipe": pipe, "butt": butt, "lap": lap, "lap_behind": lambda: lap(behind=True)}[name]()
+    sc = {"tee": tee, "pipe": pipe, "thin_pipe_far": lambda: pipe(0.015, view_scale=1.8), "butt": butt,
+          "lap": lap, "lap_behind": lambda: lap(behind=True), "v_groove": v_groove}[name]()  # fmt: skip
     if noise == "stereo":
         return render(sc, noise="stereo", seed=seed, sensor=WHITE_ONLY)
     return render(sc, noise="none", seed=seed)
