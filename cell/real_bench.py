@@ -158,9 +158,12 @@ def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]
 
     item = RealItem(rel, kind)
     if kind == "photos":
-        item.outcome, item.reason = "not_run", (
-            "photos without depth: seams need 3D; give an RGB-D capture of the part, or reconstruct a cloud "
-            "from several posed views (photogrammetry) and detect on that cloud"
+        item.outcome, item.reason = (
+            "not_run",
+            (
+                "photos without depth: seams need 3D; give an RGB-D capture of the part, or reconstruct a cloud "
+                "from several posed views (photogrammetry) and detect on that cloud"
+            ),
         )
         return item, None, []
     if kind == "mesh":

@@ -44,4 +44,3 @@ def run(args: argparse.Namespace) -> int:
             ) from err
         print(f"{path}: ok")
     return 0
-
