@@ -99,20 +99,25 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
     p0, u = _line_of(A, B, near)
     z = float(near[2])
     sig = float(noise.sigma_m(z))
-    # concave: each side's points near the fold lie on the camera side of the other plane (a convex edge
-    # has both behind), at least one of them clearly
-    sa, sb = float(np.median(B.residual(pa))), float(np.median(A.residual(pb)))
-    if min(sa, sb) <= 0.0 or max(sa, sb) < fp.concave_sigma * sig:
-        return []
     reach = fp.near_m + 3.0 * sig + 3.0 * float(noise.spacing_m(z))
     out: list[SeamCurve] = []
     ta, da = _line_coords(pa, p0, u)
     tb, db = _line_coords(pb, p0, u)
-    ta, tb = ta[da <= reach], tb[db <= reach]
+    near_a, near_b = da <= reach, db <= reach
+    ta, tb = ta[near_a], tb[near_b]
     if len(ta) < 3 or len(tb) < 3:
         return []
     lo, hi = max(ta.min(), tb.min()), min(ta.max(), tb.max())
     if hi - lo < fp.min_length_m:
+        return []
+    # concave: each side's points along the fold lie on the camera side of the other plane (a convex edge
+    # has both behind), at least one of them clearly. Only the stretch both sides share counts: beside a
+    # narrow face (a bar's end) the other surface's contact points also run past the face's own edges
+    qa, qb = pa[near_a][(ta >= lo) & (ta <= hi)], pb[near_b][(tb >= lo) & (tb <= hi)]
+    if len(qa) < 3 or len(qb) < 3:
+        return []
+    sa, sb = float(np.median(B.residual(qa))), float(np.median(A.residual(qb)))
+    if min(sa, sb) <= 0.0 or max(sa, sb) < fp.concave_sigma * sig:
         return []
     nb_ = int(np.ceil((hi - lo) / fp.bin_m))
     ca = np.bincount(np.clip(((ta - lo) / fp.bin_m).astype(int), 0, nb_ - 1)[(ta >= lo) & (ta <= hi)], minlength=nb_)
