@@ -736,6 +736,8 @@ def detect(
     """Detect every seam in ``capture``. Raises NoSeamFound (with the step that emptied it)."""
     p = params or DetectParams()
     if p.method == "surfaces":
+        from perception.detect_surfaces import detect_surfaces
+
         return detect_surfaces(capture, p, segmenter=segmenter)
     seg = segmenter or GraphSegmenter(p.segmenter)
     log = StepLog()
@@ -875,120 +877,3 @@ def _guess_viewpoint(points: FloatArray, normals: FloatArray | None = None) -> F
 
 # --------------------------------------------------------------------------------------------------
 # The fine stage rebuilt on fitted surfaces (perception/fine/): the steps, in order
-
-
-def detect_surfaces(
-    capture: Capture, params: DetectParams | None = None, *, segmenter: Segmenter | None = None
-) -> DetectionResult:
-    """Surfaces first: fitted planes and cylinders, their adjacency, and the joints between them.
-
-    The coarse stage is geometric here: surfaces are segmented on every ``factor``-th pixel (a quarter of
-    them at 1280x720), and only bands around the candidate seams are read at full resolution (the share
-    of points left out is ``info["removed_share"]``). Prompts and the image segmenter are not used yet
-    (``segmenter`` is accepted for the same signature as :func:`detect`); the table is told apart by
-    geometry. Steps: noise -> surfaces -> support -> adjacency -> folds, gaps, grooves -> full-resolution
-    refinement -> inner gaps, steps -> view clip.
-    """
-    from perception.fine.adjacency import adjacent_pairs
-    from perception.fine.folds import fold_seams
-    from perception.fine.gaps import gap_seams, inner_gap_seams
-    from perception.fine.grooves import groove_seams
-    from perception.fine.noise import estimate_noise, local_planes
-    from perception.fine.refine import refine_seams
-    from perception.fine.steps import step_seams
-    from perception.fine.support import find_support
-    from perception.fine.surfaces import segment_surfaces
-    from perception.fine.types import NoiseModel
-    from perception.fine.visibility import clip_to_view
-
-    p = params or DetectParams()
-    log = StepLog()
-    t0 = time.perf_counter()
-    with log.step("backproject"):
-        organized = capture.points_camera()
-    valid = np.isfinite(organized[..., 2])
-    log.counts["raw"] = int(valid.sum())
-    factor = max(1, round(valid.shape[1] / 640))
-    with log.step("work_image"):
-        work = np.ascontiguousarray(organized[::factor, ::factor]).astype(np.float64)
-        if p.workspace_min_m is not None and p.workspace_max_m is not None:
-            inside = np.all((work >= np.asarray(p.workspace_min_m)) & (work <= np.asarray(p.workspace_max_m)), axis=-1)
-            work[~inside] = np.nan
-        zr = work[..., 2]
-        with np.errstate(invalid="ignore"):
-            work[(zr < p.z_range_m[0]) | (zr > p.z_range_m[1])] = np.nan
-    log.counts["work"] = int(np.isfinite(work[..., 2]).sum())
-    with log.step("noise"):
-        planes = local_planes(work, window_px=7)
-        noise = estimate_noise(work, planes)
-    with log.step("surfaces"):
-        surf = segment_surfaces(work, planes, noise, factor=factor)
-    log.counts["surfaces"] = len(surf.surfaces)
-    with log.step("support"):
-        support = find_support(work, surf, noise)
-    with log.step("adjacency"):
-        pairs = adjacent_pairs(surf, noise)
-    log.counts["pairs"] = len(pairs)
-    with log.step("folds"):
-        curves = fold_seams(work, surf, pairs, noise, support=support)
-    with log.step("gaps"):
-        curves += gap_seams(work, surf, pairs, noise, support=support)
-    noise_full = NoiseModel(noise.sigma_1m_m, noise.floor_m, noise.pixel_angle_rad / factor)
-    with log.step("grooves"):
-        grooves, surf = groove_seams(work, surf, noise, organized, capture.intrinsics, noise_full, support=support)
-        # a groove whose bevels were segmented is already a fold between them
-        curves += [g for g in grooves if not _duplicates(g, curves, within_m=0.004)]
-    log.counts["candidates"] = len(curves)
-    t_coarse = time.perf_counter() - t0
-    with log.step("refine"):
-        curves, used = refine_seams(curves, organized, capture.intrinsics, surf, noise_full)
-    log.counts["cropped"] = used
-    with log.step("inner_gaps"):
-        curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=support)
-    with log.step("steps"):
-        steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=support)
-        # a step places the lap's edge from both plates and the edge face's own points; a fold on the narrow
-        # edge face, fitted on a few pixels, is the weaker estimate of the same seam
-        curves = [c for c in curves if not _duplicates(c, steps)] + steps
-    with log.step("view"):
-        curves = clip_to_view(curves)
-    t_fine = time.perf_counter() - t0 - t_coarse
-    if not curves:
-        raise NoSeamFound(
-            f"{len(surf.surfaces)} surface(s) fitted and {len(pairs)} adjacent pair(s) examined; none meets another "
-            "in a concave fold or across a narrow gap",
-            artifacts={"surfaces": surf},
-        )
-    geoms = [
-        SeamGeometry(c.kind, c.joint, c.points, c.normals_a, c.normals_b, c.surfaces, c.surfaces, c.support, c.rms_m)
-        for c in curves
-    ]
-    t2 = time.perf_counter()
-    seams = _to_seams(geoms, p, capture.X_base_camera)
-    total = time.perf_counter() - t0
-    timing = {"coarse": t_coarse, "fine": t_fine, "path": time.perf_counter() - t2, "total": total}
-    timing.update({f"step_{k}": v for k, v in log.timing_s.items()})
-    info: dict[str, Any] = {
-        "method": "surfaces",
-        "noise_sigma_1m_m": round(noise.sigma_1m_m, 7),
-        "work_factor": factor,
-        "support": sorted(support),
-        "removed_share": round(1.0 - used / max(log.counts["raw"], 1), 4),
-        "counts": dict(log.counts),
-    }
-    return DetectionResult(
-        frame="base" if capture.X_base_camera is not None else "camera",
-        seams=tuple(seams),
-        point_counts={"raw": log.counts["raw"], "cropped": used, "downsampled": log.counts["work"]},
-        timing_s=timing,
-        info=info,
-        artifacts={"surfaces": surf},
-    )
-
-
-def _duplicates(seam: Any, others: list[Any], *, within_m: float = 0.002) -> bool:
-    """Whether ``seam`` lies along one of ``others`` (median distance within ``within_m``)."""
-    from perception.evaluate import point_to_polyline_distance
-
-    probe = seam.points[0] + np.linspace(0.0, 1.0, 11)[:, None] * (seam.points[-1] - seam.points[0])
-    return any(float(np.median(point_to_polyline_distance(probe, o.points))) < within_m for o in others)

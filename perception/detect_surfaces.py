@@ -1,0 +1,175 @@
+"""Seam detection surfaces first (``DetectParams(method="surfaces")``): the pipeline of :mod:`perception.fine`.
+
+The coarse stage is geometric here: surfaces are segmented on every ``factor``-th pixel (a quarter of them
+at 1280x720), and only bands around the candidate seams are read at full resolution (the share of points
+left out is ``info["removed_share"]``). Prompts and the image segmenter are not used yet (``segmenter`` is
+accepted for the same signature as :func:`perception.detect.detect`); the table is told apart by geometry.
+
+    noise -> surfaces -> support -> adjacency -> folds, gaps, grooves     (work resolution)
+          -> refine -> inner gaps, steps -> view clip                      (full resolution near the seams)
+
+Each step is timed and counted in the result's ``timing_s`` (``step_<name>``) and ``info["counts"]``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from perception.capture import Capture
+from perception.detect import DetectParams, StepLog, _to_seams
+from perception.errors import NoSeamFound
+from perception.fine.types import NoiseModel, Pair, SeamCurve, SurfaceSet
+from perception.seamfit import SeamGeometry
+from perception.seams import DetectionResult
+from perception.segmentation import Segmenter
+
+
+def detect_surfaces(
+    capture: Capture, params: DetectParams | None = None, *, segmenter: Segmenter | None = None
+) -> DetectionResult:
+    """Every seam of ``capture`` from fitted surfaces and the joints between them; NoSeamFound (with the
+    fitted surfaces as artifacts, for the overlay) when there is none."""
+    del segmenter  # same signature as detect(); the surfaces stage does not use the image segmenter yet
+    p = params or DetectParams()
+    log = StepLog()
+    t0 = time.perf_counter()
+    with log.step("backproject"):
+        organized = capture.points_camera()
+    log.counts["raw"] = int(np.isfinite(organized[..., 2]).sum())
+    factor = max(1, round(organized.shape[1] / 640))
+    with log.step("work_image"):
+        work = _work_image(organized, factor, p)
+    log.counts["work"] = int(np.isfinite(work[..., 2]).sum())
+    curves, surf, noise, support, pairs = _work_resolution_steps(work, factor, organized, capture, log)
+    t_coarse = time.perf_counter() - t0
+    curves, used = _full_resolution_steps(curves, surf, noise, support, pairs, work, organized, capture, log)
+    t_fine = time.perf_counter() - t0 - t_coarse
+    if not curves:
+        raise NoSeamFound(
+            f"{len(surf.surfaces)} surface(s) fitted and {len(pairs)} adjacent pair(s) examined; none meets another "
+            "in a concave fold or across a narrow gap",
+            artifacts={"surfaces": surf},
+        )
+    geoms = [
+        SeamGeometry(c.kind, c.joint, c.points, c.normals_a, c.normals_b, c.surfaces, c.surfaces, c.support, c.rms_m)
+        for c in curves
+    ]
+    t2 = time.perf_counter()
+    seams = _to_seams(geoms, p, capture.X_base_camera)
+    timing = {"coarse": t_coarse, "fine": t_fine, "path": time.perf_counter() - t2, "total": time.perf_counter() - t0}
+    timing.update({f"step_{k}": v for k, v in log.timing_s.items()})
+    info: dict[str, Any] = {
+        "method": "surfaces",
+        "noise_sigma_1m_m": round(noise.sigma_1m_m, 7),
+        "work_factor": factor,
+        "support": sorted(support),
+        "removed_share": round(1.0 - used / max(log.counts["raw"], 1), 4),
+        "counts": dict(log.counts),
+    }
+    return DetectionResult(
+        frame="base" if capture.X_base_camera is not None else "camera",
+        seams=tuple(seams),
+        point_counts={"raw": log.counts["raw"], "cropped": used, "downsampled": log.counts["work"]},
+        timing_s=timing,
+        info=info,
+        artifacts={"surfaces": surf},
+    )
+
+
+def _work_image(organized: NDArray[np.float32], factor: int, p: DetectParams) -> NDArray[np.float64]:
+    """Every ``factor``-th pixel, with points outside the workspace box or the range window made invalid."""
+    work = np.ascontiguousarray(organized[::factor, ::factor]).astype(np.float64)
+    if p.workspace_min_m is not None and p.workspace_max_m is not None:
+        inside = np.all((work >= np.asarray(p.workspace_min_m)) & (work <= np.asarray(p.workspace_max_m)), axis=-1)
+        work[~inside] = np.nan
+    zr = work[..., 2]
+    with np.errstate(invalid="ignore"):
+        work[(zr < p.z_range_m[0]) | (zr > p.z_range_m[1])] = np.nan
+    return work
+
+
+def _work_resolution_steps(
+    work: NDArray[np.float64], factor: int, organized: NDArray[np.float32], capture: Capture, log: StepLog
+) -> tuple[list[SeamCurve], SurfaceSet, NoiseModel, frozenset[int], tuple[Pair, ...]]:
+    """Noise, surfaces, support, adjacency and the candidate seams (folds, gaps, grooves)."""
+    from perception.fine.adjacency import adjacent_pairs
+    from perception.fine.folds import fold_seams
+    from perception.fine.gaps import gap_seams
+    from perception.fine.grooves import groove_seams
+    from perception.fine.noise import estimate_noise, local_planes
+    from perception.fine.support import find_support
+    from perception.fine.surfaces import segment_surfaces
+
+    with log.step("noise"):
+        planes = local_planes(work, window_px=7)
+        noise = estimate_noise(work, planes)
+    with log.step("surfaces"):
+        surf = segment_surfaces(work, planes, noise, factor=factor)
+    log.counts["surfaces"] = len(surf.surfaces)
+    with log.step("support"):
+        support = find_support(work, surf, noise)
+    with log.step("adjacency"):
+        pairs = adjacent_pairs(surf, noise)
+    log.counts["pairs"] = len(pairs)
+    with log.step("folds"):
+        curves = fold_seams(work, surf, pairs, noise, support=support)
+    with log.step("gaps"):
+        curves += gap_seams(work, surf, pairs, noise, support=support)
+    with log.step("grooves"):
+        grooves, surf = groove_seams(work, surf, noise, organized, capture.intrinsics, _full(noise, factor),
+                                     support=support)  # fmt: skip
+        # a groove whose bevels were segmented is already a fold between them
+        curves += [g for g in grooves if not _duplicates(g, curves, within_m=0.004)]
+    log.counts["candidates"] = len(curves)
+    return curves, surf, noise, support, pairs
+
+
+def _full_resolution_steps(
+    curves: list[SeamCurve],
+    surf: SurfaceSet,
+    noise: NoiseModel,
+    support: frozenset[int],
+    pairs: tuple[Pair, ...],
+    work: NDArray[np.float64],
+    organized: NDArray[np.float32],
+    capture: Capture,
+    log: StepLog,
+) -> tuple[list[SeamCurve], int]:
+    """Refinement on the full-resolution points near each seam, the narrow gaps and steps only full
+    resolution shows, and the view clip; with how many full-resolution points were read."""
+    from perception.fine.gaps import inner_gap_seams
+    from perception.fine.refine import refine_seams
+    from perception.fine.steps import step_seams
+    from perception.fine.visibility import clip_to_view
+
+    noise_full = _full(noise, surf.factor)
+    with log.step("refine"):
+        curves, used = refine_seams(curves, organized, capture.intrinsics, surf, noise_full)
+    log.counts["cropped"] = used
+    with log.step("inner_gaps"):
+        curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=support)
+    with log.step("steps"):
+        steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=support)
+        # a step places the lap's edge from both plates and the edge face's own points; a fold on the narrow
+        # edge face, fitted on a few pixels, is the weaker estimate of the same seam
+        curves = [c for c in curves if not _duplicates(c, steps)] + steps
+    with log.step("view"):
+        curves = clip_to_view(curves)
+    return curves, used
+
+
+def _full(noise: NoiseModel, factor: int) -> NoiseModel:
+    """The noise model at full resolution: the same depth noise, ``factor`` times finer sample spacing."""
+    return NoiseModel(noise.sigma_1m_m, noise.floor_m, noise.pixel_angle_rad / factor)
+
+
+def _duplicates(seam: SeamCurve, others: list[SeamCurve], *, within_m: float = 0.002) -> bool:
+    """Whether ``seam`` lies along one of ``others`` (median distance within ``within_m``)."""
+    from perception.evaluate import point_to_polyline_distance
+
+    probe = seam.points[0] + np.linspace(0.0, 1.0, 11)[:, None] * (seam.points[-1] - seam.points[0])
+    return any(float(np.median(point_to_polyline_distance(probe, o.points))) < within_m for o in others)
