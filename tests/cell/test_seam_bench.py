@@ -48,3 +48,20 @@ def test_bench_subset_reports_tables_and_plot(tmp_path: Path, capsys) -> None:
     assert max(sweep[(v, "refined")]["rmse_mm"] for v in (1, 3, 6, 10)) < 0.1
     # the paper's error grows with the voxel size (at stereo noise it fails outright at 1 and 10 mm)
     assert sweep[(3, "paper")]["rmse_mm"] < sweep[(6, "paper")]["rmse_mm"]
+
+
+@pytest.mark.timeout(120)
+def test_bench_measures_the_surfaces_method_beside_the_refined_one(tmp_path: Path, capsys) -> None:
+    code = main(["bench", "--scenes", "t_joint", "--noise", "structured", "--repeats", "1", "--seeds", "1",
+                 "--sweep", "", "--methods", "refined,surfaces", "--out", str(tmp_path), "--json"])  # fmt: skip
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out)
+    t1 = {r["method"]: r for r in doc["table1"]}
+    assert set(t1) == {"refined", "surfaces"}
+    assert t1["surfaces"]["found"] == 1 and t1["surfaces"]["false"] == 0 and t1["surfaces"]["rmse_mm"] < 0.1
+    assert doc["voxel_sweep"] == []
+
+
+def test_bench_refuses_an_unknown_method(capsys) -> None:
+    assert main(["bench", "--methods", "magic"]) == 2
+    assert "--methods" in capsys.readouterr().out
