@@ -28,7 +28,6 @@ optional with a default so existing files stay valid); :func:`load_config` needs
 from __future__ import annotations
 
 import ipaddress
-import json
 import math
 import os
 import re
@@ -397,8 +396,9 @@ class CalibrationConfig(Section):
 
 class HandEyeConfig(Section):
     """``[hand_eye]``: the camera pose on the tool, ``X_tool_camera`` (4x4, metres), given inline or as
-    ``path`` to a JSON file holding an object with an ``"X_tool_camera"`` key (as in a capture's pose.json, or as
-    ``weldcell calibrate hand-eye`` writes it). ``calibration``: how that command calibrates it (optional)."""
+    ``path`` to a hand-eye result file as ``weldcell calibrate hand-eye`` writes it (``"format":
+    "weldcell-hand-eye/1"`` and an ``"X_tool_camera"`` key; read by :mod:`calibration.result_file`).
+    ``calibration``: how that command calibrates it (optional)."""
 
     path: str | None = Field(default=None, min_length=1)
     X_tool_camera: list[list[float]] | None = None
@@ -646,21 +646,14 @@ class CellConfig(Section):
             return None
         if he.X_tool_camera is not None:
             return check_X(np.asarray(he.X_tool_camera, dtype=np.float64), name="X_tool_camera")
+        from calibration.result_file import ResultFileError, read_X_tool_camera
+
         assert he.path is not None
         path = self.resolve(he.path)
-        key = self.where("hand_eye.path")
         try:
-            obj = json.loads(path.read_text(encoding="utf-8"))
-        except OSError as err:
-            raise ConfigError(f"{key}: cannot read the hand-eye file {path}: {err.strerror or err}") from err
-        except (UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise ConfigError(f"{key}: the hand-eye file {path} is not valid JSON: {err}") from err
-        if not isinstance(obj, dict) or "X_tool_camera" not in obj:
-            raise ConfigError(f"{key}: the hand-eye file {path} has no 'X_tool_camera' key")
-        try:
-            return check_X(np.asarray(obj["X_tool_camera"], dtype=np.float64), name="X_tool_camera")
-        except (TransformError, TypeError, ValueError) as err:
-            raise ConfigError(f"{key}: {path}: {err}") from err
+            return read_X_tool_camera(path)
+        except ResultFileError as err:
+            raise ConfigError(f"{self.where('hand_eye.path')}: {err}") from err
 
 
 # ================================================================================================ loading

@@ -20,15 +20,9 @@ if TYPE_CHECKING:
     from rich.progress import Progress, TaskID
 
     from calibration.handeye import HandEyeResult
-    from calibration.wizard import (
-        Assessment,
-        CalibrationPlan,
-        DeviceReport,
-        VerdictThresholds,
-        Verification,
-        ViewRecord,
-        WizardParams,
-    )
+    from calibration.verdict import Assessment, VerdictThresholds, Verification
+    from calibration.views import CalibrationPlan, ViewRecord, WizardParams
+    from calibration.wizard import DeviceReport
     from cell.config import CellConfig
 
 EXIT_INTERRUPTED = 130
@@ -177,7 +171,7 @@ def wizard_setup(config: CellConfig, args: argparse.Namespace) -> tuple[WizardPa
     nominal mount standing in for a result file that does not exist yet), and the result file."""
     from calibration.handeye import HandEyeMode
     from calibration.planner import PlanParams
-    from calibration.wizard import WizardParams
+    from calibration.views import WizardParams
     from cell.errors import ConfigError
 
     he = config.hand_eye
@@ -391,7 +385,7 @@ class RichUI:
     def solved(self, result: HandEyeResult, views: Sequence[ViewRecord]) -> None:
         from rich.table import Table
 
-        from calibration.wizard import solved_transforms
+        from calibration.verdict import solved_transforms
 
         assert result.view_residuals_px is not None and result.rms_px is not None
         table = Table(

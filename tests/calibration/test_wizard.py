@@ -34,24 +34,11 @@ from calibration.board import CharucoBoardSpec, detect_board
 from calibration.errors import CalibrationError
 from calibration.handeye import HandEyeMode, HandEyeResult
 from calibration.planner import PlanParams
+from calibration.result_file import PREVIOUS_SUFFIX, RESULT_FORMAT
 from calibration.simulate import RenderParams, perturb_pose, render_view
-from calibration.wizard import (
-    PREVIOUS_SUFFIX,
-    CalibrationPlan,
-    DeviceReport,
-    HandEyeWizard,
-    LoggingUI,
-    Verdict,
-    VerdictThresholds,
-    Verification,
-    ViewRecord,
-    WizardCancelled,
-    WizardParams,
-    assess,
-    make_plan,
-    visible_corner_count,
-    write_result_file,
-)
+from calibration.verdict import Verdict, VerdictThresholds, Verification, assess
+from calibration.views import CalibrationPlan, ViewRecord, WizardParams, make_plan, visible_corner_count
+from calibration.wizard import DeviceReport, HandEyeWizard, LoggingUI, WizardCancelled
 from cell import config as config_module
 from cell.commands.calibrate import wizard_setup
 from cell.config import CellConfig, load_config
@@ -70,7 +57,11 @@ TOL_MM = 0.5
 TOL_DEG = 0.1
 UR_TEST_HOST = "127.0.0.46"  # the examples use .41 (sim-cell) and .45 (sim-calib); tests/cell uses .43
 OUR_THREAD_PREFIXES = ("fake-track", "fake-fanuc", "fanuc-rmi")
-CAD_HAND_EYE = {"X_tool_camera": X_TOOL_CAMERA.tolist(), "note": "the CAD mount, before any calibration"}
+CAD_HAND_EYE = {
+    "format": RESULT_FORMAT,
+    "X_tool_camera": X_TOOL_CAMERA.tolist(),
+    "note": "the CAD mount, before any calibration",
+}
 FloatArray = NDArray[np.float64]
 
 
@@ -628,19 +619,3 @@ def test_verdict_thresholds() -> None:
     )
     with pytest.raises(CalibrationError, match="pass_rms_px <= fail_rms_px"):
         VerdictThresholds(pass_rms_px=3.0, fail_rms_px=2.0)
-
-
-def test_result_file_is_written_atomically_and_keeps_the_previous_one(tmp_path: Path) -> None:
-    out = tmp_path / "calib" / "hand_eye.json"
-    assert write_result_file(out, {"X_tool_camera": np.eye(4).tolist(), "n": 1}) is None
-    first = out.read_bytes()
-    assert json.loads(first)["X_tool_camera"][1] == [0.0, 1.0, 0.0, 0.0]
-    assert b"[0.0, 1.0, 0.0, 0.0]" in first  # a matrix row on one line
-    prev = write_result_file(out, {"X_tool_camera": np.eye(4).tolist(), "n": 2})
-    assert prev == out.with_name("hand_eye.json.prev") and prev.read_bytes() == first
-    second = out.read_bytes()
-    # a document that cannot be written (NaN is not JSON) changes nothing and leaves no temporary file
-    with pytest.raises(ValueError):
-        write_result_file(out, {"X_tool_camera": [[float("nan")]]})
-    assert out.read_bytes() == second and prev.read_bytes() == first
-    assert sorted(p.name for p in out.parent.iterdir()) == ["hand_eye.json", "hand_eye.json.prev"]

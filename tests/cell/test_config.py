@@ -71,7 +71,8 @@ def test_minimal_config_takes_defaults_and_no_track(tmp_path: Path) -> None:
 
 def test_hand_eye_file_is_read_relative_to_the_config(tmp_path: Path) -> None:
     (tmp_path / "calib").mkdir()
-    (tmp_path / "calib" / "hand_eye.json").write_text(json.dumps({"X_tool_camera": X_TOOL_CAMERA, "rms_mm": 0.4}))
+    document = {"format": "weldcell-hand-eye/1", "X_tool_camera": X_TOOL_CAMERA, "rms_mm": 0.4}
+    (tmp_path / "calib" / "hand_eye.json").write_text(json.dumps(document))
     config = load_config(write(tmp_path, MINIMAL + '\n[hand_eye]\npath = "calib/hand_eye.json"\n'))
     assert np.array_equal(np.asarray(config.X_tool_camera()), np.array(X_TOOL_CAMERA))
 
@@ -152,9 +153,14 @@ def test_hand_eye_mistakes(tmp_path: Path) -> None:
     config = load_config(write(tmp_path, MINIMAL + '\n[hand_eye]\npath = "missing.json"\n'))
     with pytest.raises(ConfigError, match=r"cell\.toml: hand_eye\.path: cannot read the hand-eye file"):
         config.X_tool_camera()
-    (tmp_path / "bad.json").write_text('{"X_base_tool": []}')
+    (tmp_path / "bad.json").write_text('{"format": "weldcell-hand-eye/1", "X_base_tool": []}')
     config = load_config(write(tmp_path, MINIMAL + '\n[hand_eye]\npath = "bad.json"\n'))
-    with pytest.raises(ConfigError, match="has no 'X_tool_camera' key"):
+    with pytest.raises(ConfigError, match=r"cell\.toml: hand_eye\.path: the hand-eye file .* no 'X_tool_camera' key"):
+        config.X_tool_camera()
+    # a capture's pose.json is not a result file: the format is checked
+    (tmp_path / "pose.json").write_text(json.dumps({"X_tool_camera": X_TOOL_CAMERA}))
+    config = load_config(write(tmp_path, MINIMAL + '\n[hand_eye]\npath = "pose.json"\n'))
+    with pytest.raises(ConfigError, match=r"hand_eye\.path: the hand-eye file .*pose\.json has no 'format' key"):
         config.X_tool_camera()
 
 
