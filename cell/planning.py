@@ -42,7 +42,7 @@ from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation, Slerp
 
 from cell.errors import ConfigError, SafetyViolation
-from perception.seams import Seam
+from perception.seams import Seam, check_seam_path
 from perception.transforms import make_X
 
 FloatArray = NDArray[np.float64]
@@ -211,7 +211,8 @@ def X_world_base(track_position_m: float, axis_base: ArrayLike) -> FloatArray:
 # ================================================================================================ seams in world
 @dataclass(frozen=True)
 class WorldSeam:
-    """A seam in the world frame (the base frame with the track at 0).
+    """A seam in the world frame (the base frame with the track at 0): a :class:`perception.seams.Seam` moved
+    there by :func:`world_seams`, checked by the same rule (:func:`perception.seams.check_seam_path`).
 
     ``points_world``: (N, 3) path, metres, ordered along the seam; ``X_world_torch``: (N, 4, 4) neutral torch
     poses there; ``sources``: the (capture index, detector seam id) pairs it was built from.
@@ -225,12 +226,13 @@ class WorldSeam:
     sources: tuple[tuple[int, int], ...]
 
     def __post_init__(self) -> None:
-        pts = np.asarray(self.points_world, dtype=np.float64)
-        poses = np.asarray(self.X_world_torch, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
-            raise ValueError(f"seam {self.id}: points_world must be (N>=2, 3), got {pts.shape}")
-        if poses.shape != (len(pts), 4, 4):
-            raise ValueError(f"seam {self.id}: X_world_torch must be ({len(pts)}, 4, 4), got {poses.shape}")
+        pts, poses = check_seam_path(
+            self.points_world,
+            self.X_world_torch,
+            what=f"seam {self.id}:",
+            points_name="points_world",
+            poses_name="X_world_torch",
+        )
         object.__setattr__(self, "points_world", pts)
         object.__setattr__(self, "X_world_torch", poses)
 

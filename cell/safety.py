@@ -27,12 +27,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from cell.errors import ConfigError, SafetyViolation
 from cell.planning import CellGeometry, MoveKind, SeamPass, Waypoint, WeldPath, X_world_base
-from perception.transforms import rotation_angle_rad
+from perception.transforms import TransformError, check_X, rotation_angle_rad
 
 FloatArray = NDArray[np.float64]
-
-_ORTHO_TOL = 1e-6
-
 
 @dataclass(frozen=True)
 class SafetyLimits:
@@ -82,30 +79,16 @@ def _finite(value: float, what: str) -> float:
 
 
 def check_pose(X: ArrayLike, what: str) -> FloatArray:
-    """``X`` as a (4, 4) array if it is a finite, proper rigid transform; SafetyViolation otherwise."""
-    arr = np.asarray(X, dtype=np.float64)
-    if arr.shape != (4, 4):
-        raise SafetyViolation(f"{what}: pose has shape {arr.shape}, expected (4, 4)")
-    if not np.all(np.isfinite(arr)):
-        bad = [f"[{r}, {c}]" for r, c in zip(*np.nonzero(~np.isfinite(arr)), strict=True)]
-        raise SafetyViolation(f"{what}: pose contains NaN or inf at {', '.join(bad)}")
-    if not np.allclose(arr[3], [0.0, 0.0, 0.0, 1.0], atol=_ORTHO_TOL):
-        raise SafetyViolation(f"{what}: last row of the pose is {arr[3].tolist()}, expected [0, 0, 0, 1]")
-    R = arr[:3, :3]
-    err = float(np.abs(R.T @ R - np.eye(3)).max())
-    if err > _ORTHO_TOL * 100:
-        raise SafetyViolation(f"{what}: rotation is not orthonormal (max |R^T R - I| = {err:.2e}, limit 1e-4)")
-    det = float(np.linalg.det(R))
-    if det < 0:
-        raise SafetyViolation(f"{what}: rotation is a reflection (det = {det:.3f}, must be +1)")
-    return arr
+    """``X`` as a (4, 4) array if it is a finite, proper rigid transform (:func:`perception.transforms.check_X`,
+    the one home of that rule); SafetyViolation naming ``what`` otherwise."""
+    try:
+        return check_X(X, name=f"{what} pose")
+    except TransformError as err:
+        raise SafetyViolation(str(err)) from err
 
 
-def validate(weld_path: WeldPath, limits: SafetyLimits) -> None:
-    """Raise :class:`SafetyViolation` naming the first pose, value and limit that break a rule (module docstring).
-
-    Returns None when the whole path is acceptable.
-    """
+def _check_path_settings(weld_path: WeldPath, limits: SafetyLimits) -> None:
+    """What holds for the whole path: its acceleration and dwell times, and the track axis it was planned with."""
     params = weld_path.params
     _finite(params.accel_m_s2, "acceleration accel_m_s2")
     if not 0 < params.accel_m_s2 <= limits.max_accel_m_s2:
@@ -120,6 +103,14 @@ def validate(weld_path: WeldPath, limits: SafetyLimits) -> None:
             f"the path was planned with track axis {axis.tolist()} but the cell's is "
             f"{limits.geometry.axis_base.tolist()}"
         )
+
+
+def validate(weld_path: WeldPath, limits: SafetyLimits) -> None:
+    """Raise :class:`SafetyViolation` naming the first pose, value and limit that break a rule (module docstring).
+
+    Returns None when the whole path is acceptable.
+    """
+    _check_path_settings(weld_path, limits)
     reach = limits.geometry.reach
     track = limits.geometry.track
     lo, hi = limits.workspace_min_world, limits.workspace_max_world

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from perception.capture import write_json
 from perception.errors import BadCapture
@@ -31,6 +31,28 @@ from perception.transforms import (
 
 FloatArray = NDArray[np.float64]
 Frame = Literal["camera", "base"]
+
+
+def check_seam_path(
+    points: ArrayLike,
+    poses: ArrayLike,
+    *,
+    what: str,
+    points_name: str = "points",
+    poses_name: str = "poses",
+) -> tuple[FloatArray, FloatArray]:
+    """A seam's path as float64 arrays after checking it: ``points`` (N >= 2, 3) metres and ``poses`` (N, 4, 4)
+    torch poses, all finite. The one home of this rule for every seam type (:class:`Seam` here, the planner's
+    world-frame seams); ValueError naming ``what`` and the field otherwise."""
+    pts = np.asarray(points, dtype=np.float64)
+    X = np.asarray(poses, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
+        raise ValueError(f"{what} {points_name} must be (N>=2, 3), got {pts.shape}")
+    if X.shape != (len(pts), 4, 4):
+        raise ValueError(f"{what} {poses_name} must be ({len(pts)}, 4, 4), got {X.shape}")
+    if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(X))):
+        raise ValueError(f"{what} {points_name} or {poses_name} contain NaN or inf")
+    return pts, X
 
 
 @dataclass(frozen=True)
@@ -53,14 +75,7 @@ class Seam:
     joint: str = "fillet"  # fillet, inside_corner, lap, v_groove, butt
 
     def __post_init__(self) -> None:
-        pts = np.asarray(self.points, dtype=np.float64)
-        poses = np.asarray(self.poses, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
-            raise ValueError(f"seam points must be (N>=2, 3), got {pts.shape}")
-        if poses.shape != (len(pts), 4, 4):
-            raise ValueError(f"seam poses must be ({len(pts)}, 4, 4), got {poses.shape}")
-        if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(poses))):
-            raise ValueError("seam points or poses contain NaN or inf")
+        pts, poses = check_seam_path(self.points, self.poses, what="seam")
         object.__setattr__(self, "points", pts)
         object.__setattr__(self, "poses", poses)
 

@@ -37,15 +37,19 @@ def check_X(X: ArrayLike, *, name: str = "X", tol: float = _ORTHO_TOL) -> FloatA
     if arr.shape != (4, 4):
         raise TransformError(f"{name}: expected shape (4, 4), got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise TransformError(f"{name}: contains NaN or inf")
+        bad = ", ".join(f"[{r}, {c}]" for r, c in zip(*np.nonzero(~np.isfinite(arr)), strict=True))
+        raise TransformError(f"{name}: contains NaN or inf at {bad}")
     if not np.allclose(arr[3], [0.0, 0.0, 0.0, 1.0], atol=tol):
         raise TransformError(f"{name}: last row must be [0, 0, 0, 1], got {arr[3].tolist()}")
     R = arr[:3, :3]
     err_ortho = float(np.abs(R.T @ R - np.eye(3)).max())
     if err_ortho > tol * 100:
-        raise TransformError(f"{name}: rotation part is not orthonormal (max |R^T R - I| = {err_ortho:.2e})")
-    if np.linalg.det(R) < 0:
-        raise TransformError(f"{name}: rotation part is a reflection (det < 0)")
+        raise TransformError(
+            f"{name}: rotation part is not orthonormal (max |R^T R - I| = {err_ortho:.2e}, limit {tol * 100:.0e})"
+        )
+    det = float(np.linalg.det(R))
+    if det < 0:
+        raise TransformError(f"{name}: rotation part is a reflection (det = {det:.3f}, must be +1)")
     return arr
 
 

@@ -94,7 +94,7 @@ def test_nan_and_inf_are_refused(path: WeldPath) -> None:
     X = path.passes[0].travel[3].X_base_tcp.copy()
     X[1, 3] = np.nan
     msg = refused(replace_waypoint(path, 0, "travel[3]", X_base_tcp=X), limits())
-    assert f"pass 1 (seam {path.passes[0].seam_id}) travel[3]: pose contains NaN or inf at [1, 3]" in msg
+    assert f"pass 1 (seam {path.passes[0].seam_id}) travel[3] pose: contains NaN or inf at [1, 3]" in msg
     msg = refused(replace_waypoint(path, 1, "arc_off", speed_m_s=math.inf), limits())
     assert "arc_off: speed is inf, not a finite number" in msg
     msg = refused(replace_waypoint(path, 0, "travel[2]", blend_m=math.nan), limits())
@@ -103,9 +103,9 @@ def test_nan_and_inf_are_refused(path: WeldPath) -> None:
 
 def test_improper_rotations_are_refused(path: WeldPath) -> None:
     msg = refused(moved_pose(path, 0, "approach", np.diag([1.0, 1.0, 1.001, 1.0]), right=True), limits())
-    assert "approach: rotation is not orthonormal" in msg
+    assert "approach pose: rotation part is not orthonormal" in msg
     msg = refused(moved_pose(path, 0, "approach", np.diag([1.0, 1.0, -1.0, 1.0]), right=True), limits())
-    assert "approach: rotation is a reflection (det = -1.000" in msg
+    assert "approach pose: rotation part is a reflection (det = -1.000" in msg
 
 
 def test_outside_the_workspace_box_is_refused(path: WeldPath) -> None:
