@@ -4,10 +4,10 @@ The views are generated relative to the board, as camera poses ``X_board_camera`
 on the board's front side (the side a camera reading the print is on, i.e. negative board z):
 
 - stand-off distance ``standoff_m`` (± ``standoff_jitter_m``) from the board centre,
-- tilt (angle between the optical axis and the board normal) between ``min_tilt_deg`` and
-  ``max_tilt_deg``, stratified so small and large tilts both occur,
+- tilt (angle between the optical axis and the board normal) between ``min_tilt_rad`` and
+  ``max_tilt_rad``, stratified so small and large tilts both occur,
 - azimuth around the board normal on a golden-angle sequence (evenly spread for any count),
-- roll about the optical axis within ± ``max_roll_deg``, so the relative rotations turn about
+- roll about the optical axis within ± ``max_roll_rad``, so the relative rotations turn about
   different axes (tilts alone give axes in the board plane; roll adds the normal),
 - the optical axis aimed at the board centre ± ``aim_jitter_m``.
 
@@ -21,6 +21,7 @@ orientation are skipped. The accepted poses are returned ordered by azimuth to k
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
@@ -78,33 +79,37 @@ class Workspace:
 
 @dataclass(frozen=True)
 class PlanParams:
-    """How to spread the calibration views (see the module docstring). Metres and degrees are the
-    operator-facing units here; ``min_separation_deg`` is the least rotation between any two views."""
+    """How to spread the calibration views (see the module docstring). Metres and radians (the config's
+    ``[hand_eye.calibration]`` keys are in degrees, converted once in :mod:`cell.config`);
+    ``min_separation_rad`` is the least rotation between any two views."""
 
     n_poses: int = 15
     standoff_m: float = 0.40
     standoff_jitter_m: float = 0.05
-    min_tilt_deg: float = 10.0
-    max_tilt_deg: float = 35.0
-    max_roll_deg: float = 40.0
+    min_tilt_rad: float = math.radians(10.0)
+    max_tilt_rad: float = math.radians(35.0)
+    max_roll_rad: float = math.radians(40.0)
     aim_jitter_m: float = 0.02
-    min_separation_deg: float = 5.0
+    min_separation_rad: float = math.radians(5.0)
     image_margin_px: float = 20.0
     max_candidates: int = 5000
 
     def __post_init__(self) -> None:
         if self.n_poses < 3:
             raise CalibrationError(f"plan: need at least 3 poses (8+ recommended), got {self.n_poses}")
-        if not 0.0 <= self.min_tilt_deg <= self.max_tilt_deg < 80.0:
+        if not 0.0 <= self.min_tilt_rad <= self.max_tilt_rad < math.radians(80.0):
             raise CalibrationError(
-                f"plan: need 0 <= min_tilt_deg <= max_tilt_deg < 80, got {self.min_tilt_deg}, {self.max_tilt_deg}"
+                f"plan: need 0 <= min_tilt <= max_tilt < 80 deg, got {math.degrees(self.min_tilt_rad):g} deg, "
+                f"{math.degrees(self.max_tilt_rad):g} deg"
             )
         if self.standoff_m <= 0 or not 0.0 <= self.standoff_jitter_m < self.standoff_m:
             raise CalibrationError(
                 f"plan: need standoff_m > standoff_jitter_m >= 0, got {self.standoff_m}, {self.standoff_jitter_m}"
             )
-        if not 0.0 <= self.max_roll_deg <= 180.0:
-            raise CalibrationError(f"plan: max_roll_deg must be in [0, 180], got {self.max_roll_deg}")
+        if not 0.0 <= self.max_roll_rad <= math.pi:
+            raise CalibrationError(
+                f"plan: max_roll must be in [0, 180] deg, got {math.degrees(self.max_roll_rad):g} deg"
+            )
 
 
 def board_view_poses(board: CharucoBoardSpec, *, params: PlanParams, seed: int) -> Iterator[FloatArray]:
@@ -115,8 +120,8 @@ def board_view_poses(board: CharucoBoardSpec, *, params: PlanParams, seed: int) 
     rng = np.random.default_rng(seed)
     width_m, height_m = board.size_m
     center_board = np.array([width_m / 2.0, height_m / 2.0, 0.0])
-    cos_min = np.cos(np.radians(params.min_tilt_deg))
-    cos_max = np.cos(np.radians(params.max_tilt_deg))
+    cos_min = np.cos(params.min_tilt_rad)
+    cos_max = np.cos(params.max_tilt_rad)
     azimuth0 = rng.uniform(0.0, 2.0 * np.pi)
     for k in range(params.max_candidates):
         azimuth = azimuth0 + k * _GOLDEN_ANGLE + rng.normal(0.0, 0.1)
@@ -129,7 +134,7 @@ def board_view_poses(board: CharucoBoardSpec, *, params: PlanParams, seed: int) 
         eye = center_board + standoff * direction
         # "Up" in the image is the board's -y (the top of the print), then the roll.
         X_board_camera = look_at_X(eye, aim, up=(0.0, -1.0, 0.0))
-        roll = np.radians(rng.uniform(-params.max_roll_deg, params.max_roll_deg))
+        roll = rng.uniform(-params.max_roll_rad, params.max_roll_rad)
         c, s = np.cos(roll), np.sin(roll)
         yield X_board_camera @ make_X([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], np.zeros(3))
 
@@ -222,7 +227,7 @@ def _select(
             and not _outline_in_image(outline_board, X_board_camera, K, image_size, params.image_margin_px)
         ):
             continue
-        min_sep = np.radians(params.min_separation_deg)
+        min_sep = params.min_separation_rad
         if any(rotation_angle_rad(X_board_camera, other) < min_sep for _, other, _ in chosen):
             continue
         to_camera = X_board_camera[:3, 3] - np.array([*np.asarray(board.size_m) / 2.0, 0.0])

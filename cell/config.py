@@ -33,13 +33,16 @@ import os
 import re
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from cell.errors import ConfigError
 from perception.transforms import TransformError, check_X
+
+if TYPE_CHECKING:
+    from calibration.planner import PlanParams
 
 FANUC_RMI_PORT = 16001
 """FANUC RMI's well-known connect port (a protocol constant, used when ``robot.port`` is not given)."""
@@ -378,20 +381,26 @@ class CalibrationConfig(Section):
         if self.min_views > self.poses:
             raise ValueError(f"poses = {self.poses} is below min_views = {self.min_views}")
         from calibration.errors import CalibrationError
-        from calibration.planner import PlanParams
 
         try:
-            PlanParams(
-                n_poses=self.poses,
-                standoff_m=self.standoff_m,
-                standoff_jitter_m=self.standoff_jitter_m,
-                min_tilt_deg=self.min_tilt_deg,
-                max_tilt_deg=self.max_tilt_deg,
-                max_roll_deg=self.max_roll_deg,
-            )
+            self.plan_params(self.poses)
         except CalibrationError as err:
             raise ValueError(str(err)) from err
         return self
+
+    def plan_params(self, n_poses: int) -> PlanParams:
+        """The planner's :class:`calibration.planner.PlanParams` for ``n_poses`` views: the file's degrees
+        converted to radians here, the one place they are."""
+        from calibration.planner import PlanParams
+
+        return PlanParams(
+            n_poses=n_poses,
+            standoff_m=self.standoff_m,
+            standoff_jitter_m=self.standoff_jitter_m,
+            min_tilt_rad=math.radians(self.min_tilt_deg),
+            max_tilt_rad=math.radians(self.max_tilt_deg),
+            max_roll_rad=math.radians(self.max_roll_deg),
+        )
 
 
 class HandEyeConfig(Section):

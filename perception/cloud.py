@@ -3,6 +3,7 @@ and region growing. Each is a pure function; arrays are (N, 3) float64 metres in
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -168,7 +169,7 @@ def smallest_eigenpairs(A: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 @dataclass(frozen=True)
 class RegionParams:
-    max_angle_deg: float = 12.0  # smoothness: neighbours join when their normals differ by less
+    max_angle_rad: float = math.radians(12.0)  # smoothness: neighbours join when their normals differ by less
     max_curvature: float = 0.04  # only points flatter than this keep growing the region
     min_region_points: int = 8
 
@@ -185,7 +186,7 @@ def grow_regions(
     """Region growing as in PCL's RegionGrowing, seeded from the lowest curvature.
 
     A region starts at the flattest unassigned point; a neighbour joins when its normal is within
-    ``max_angle_deg`` of the current point's (and, when ``labels`` are given, it has the same surface
+    ``max_angle_rad`` of the current point's (and, when ``labels`` are given, it has the same surface
     label); a joined neighbour keeps growing the region only if its curvature is below
     ``max_curvature``. Returns (M,) region ids numbered in seeding order, -1 for points in regions
     smaller than ``min_region_points``.
@@ -200,7 +201,7 @@ def grow_regions(
 
     p = params or RegionParams()
     m = len(normals)
-    cos_t = np.cos(np.radians(p.max_angle_deg))
+    cos_t = np.cos(p.max_angle_rad)
     idx = nbh.idx
     nb_normals = normals[idx]  # (M, k, 3)
     linked = nbh.valid if max_link_m is None else nbh.valid & (nbh.dist <= max_link_m)
@@ -248,10 +249,10 @@ def merge_coplanar_regions(
     regions: NDArray[np.int32],
     nbh: Neighbourhoods,
     *,
-    max_angle_deg: float = 10.0,
+    max_angle_rad: float = math.radians(10.0),
     max_offset_m: float = 0.0015,
 ) -> NDArray[np.int32]:
-    """Join neighbouring regions that are one plane split by noise (normals within ``max_angle_deg``,
+    """Join neighbouring regions that are one plane split by noise (normals within ``max_angle_rad``,
     each centroid within ``max_offset_m`` + 2 RMS of the other's plane). Region ids keep the order of
     their smallest member id, so the result stays deterministic."""
     n_reg = int(regions.max(initial=-1)) + 1
@@ -278,7 +279,7 @@ def merge_coplanar_regions(
             x = parent[x]
         return x
 
-    cos_t = np.cos(np.radians(max_angle_deg))
+    cos_t = np.cos(max_angle_rad)
     for i, j in pairs:
         ci, ni, ri = planes[i]
         cj, nj, rj = planes[j]

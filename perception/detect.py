@@ -281,7 +281,7 @@ def _butt_seams(
         return out  # the paper's fine stage has no butt-joint step
     from scipy import ndimage
 
-    cos_max = np.cos(np.radians(2 * params.seams.max_coplanar_deg))
+    cos_max = np.cos(2 * params.seams.max_coplanar_rad)
     boxes: list[Any] | None = None
     for i, j in sorted(pairs):
         pi, pj = voxel_planes.get(i), voxel_planes.get(j)

@@ -63,9 +63,9 @@ def _dot(a: FloatImage, b: FloatImage) -> FloatImage:
     return np.asarray(np.einsum("...k,...k->...", a, b))
 
 
-def normal_edges(normals: FloatImage, *, max_angle_deg: float, step_px: int = 2) -> NDArray[np.bool_]:
-    """Pixels where the normal turns by more than ``max_angle_deg`` across ``step_px`` in u or v."""
-    c = np.cos(np.radians(max_angle_deg))
+def normal_edges(normals: FloatImage, *, max_angle_rad: float, step_px: int = 2) -> NDArray[np.bool_]:
+    """Pixels where the normal turns by more than ``max_angle_rad`` across ``step_px`` in u or v."""
+    c = np.cos(max_angle_rad)
     s = step_px
     edge = np.zeros(normals.shape[:2], bool)
     with np.errstate(invalid="ignore"):

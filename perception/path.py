@@ -8,6 +8,7 @@ torch about the travel axis away from the bisector; travel angle tilts it along 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,9 +21,21 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class TorchParams:
+    """How the path is sampled and the torch held: ``step_m`` (metres) at most between path points;
+    ``work_angle_rad`` about the travel axis (torch x) and ``travel_angle_rad`` about the new torch y (positive =
+    push), radians (``weldcell detect`` takes degrees and converts them)."""
+
     step_m: float = 0.005
-    work_angle_deg: float = 0.0
-    travel_angle_deg: float = 0.0
+    work_angle_rad: float = 0.0
+    travel_angle_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.step_m) and self.step_m > 0):
+            raise ValueError(f"torch params: step_m must be finite and > 0, got {self.step_m}")
+        for name in ("work_angle_rad", "travel_angle_rad"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and abs(value) < math.pi / 2):
+                raise ValueError(f"torch params: {name} must be within (-pi/2, pi/2), got {value}")
 
 
 def sample_uniform(line: FloatArray, step_m: float) -> tuple[FloatArray, FloatArray]:
@@ -58,11 +71,11 @@ def torch_poses(
     x /= np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
     y = np.cross(z, x)
     R = np.stack([x, y, z], axis=2)  # columns are the torch axes
-    if p.work_angle_deg or p.travel_angle_deg:
+    if p.work_angle_rad or p.travel_angle_rad:
         from scipy.spatial.transform import Rotation
 
         # intrinsic rotations: first about the travel axis x (work), then about the new y (travel)
-        local = Rotation.from_euler("XY", [p.work_angle_deg, p.travel_angle_deg], degrees=True).as_matrix()
+        local = Rotation.from_euler("XY", [p.work_angle_rad, p.travel_angle_rad]).as_matrix()
         R = R @ local
     X = np.tile(np.eye(4), (n, 1, 1))
     X[:, :3, :3] = R

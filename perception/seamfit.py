@@ -7,6 +7,7 @@ camera (the side a torch comes from).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -24,8 +25,8 @@ FloatArray = NDArray[np.float64]
 class SeamParams:
     min_edge_points: int = 6
     patch_radius_m: float = 0.012  # surface points this close to the junction describe it
-    min_fold_deg: float = 25.0  # surfaces meeting at a sharper turn than this can form a fillet
-    max_coplanar_deg: float = 8.0  # surfaces this parallel can only form a butt joint
+    min_fold_rad: float = math.radians(25.0)  # surfaces meeting at a sharper turn than this can form a fillet
+    max_coplanar_rad: float = math.radians(8.0)  # surfaces this parallel can only form a butt joint
     concave_margin_m: float = 0.0005
     max_gap_m: float = 0.005  # widest butt-joint gap
     min_gap_m: float = 0.0003  # a narrower "gap" is one surface split by the segmenter, not a joint
@@ -42,7 +43,7 @@ class SeamParams:
     plane_gate_sigma: float = 3.0
     slab_half_width_m: float = 0.0025  # cross-section slab for curved seams
     curve_step_m: float = 0.002
-    max_incidence_deg: float = 78.0
+    max_incidence_rad: float = math.radians(78.0)
 
 
 @dataclass(frozen=True)
@@ -248,16 +249,18 @@ class FullRes:
     region_normals: FloatArray
     normals: FloatArray  # (N, 3) each point's voxel normal
     labels: NDArray[np.int32] | None = None  # (N,) coarse surface label, when the coarse stage ran
-    unassigned_max_angle_deg: float = 60.0
+    unassigned_max_angle_rad: float = math.radians(60.0)
 
-    def compatible(self, idx: NDArray[np.int64], n: FloatArray, max_angle_deg: float = 15.0) -> NDArray[np.bool_]:
+    def compatible(
+        self, idx: NDArray[np.int64], n: FloatArray, max_angle_rad: float = math.radians(15.0)
+    ) -> NDArray[np.bool_]:
         """Points (by index) that could be part of a face with normal ``n``: regions facing the same way
         (fragments of that face), or unassigned points whose own normal is within 30 degrees."""
         reg = self.regions[idx]
-        ok = (reg < 0) & (np.abs(self.normals[idx] @ n) >= np.cos(np.radians(self.unassigned_max_angle_deg)))
+        ok = (reg < 0) & (np.abs(self.normals[idx] @ n) >= np.cos(self.unassigned_max_angle_rad))
         if len(self.region_normals):
             cos = np.abs(self.region_normals @ n)
-            ok |= (reg >= 0) & (cos[np.maximum(reg, 0)] >= np.cos(np.radians(max_angle_deg)))
+            ok |= (reg >= 0) & (cos[np.maximum(reg, 0)] >= np.cos(max_angle_rad))
         return ok
 
 
@@ -309,15 +312,15 @@ def _junction_kinds(
 ) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
     """The junction rules for K plane pairs (centroids and normals, (K, 3) each): the index of each pair's
     kind in JOINT_KINDS, and both normals turned towards ``viewpoint``. Two surfaces folded by at least
-    ``min_fold_deg`` form a fillet when each lies on the outer (torch) side of the other's plane, else a
+    ``min_fold_rad`` form a fillet when each lies on the outer (torch) side of the other's plane, else a
     convex edge; nearly parallel ones in one plane may be a butt joint."""
     na = np.where(((viewpoint - ca) * na).sum(axis=1, keepdims=True) >= 0, na, -na)
     nb = np.where(((viewpoint - cb) * nb).sum(axis=1, keepdims=True) >= 0, nb, -nb)
-    angle = np.degrees(np.arccos(np.clip(np.abs((na * nb).sum(axis=1)), -1.0, 1.0)))
+    angle = np.arccos(np.clip(np.abs((na * nb).sum(axis=1)), -1.0, 1.0))  # radians
     m = params.concave_margin_m
     concave = ((na * (cb - ca)).sum(axis=1) > m) & ((nb * (ca - cb)).sum(axis=1) > m)
-    folded = angle >= params.min_fold_deg
-    flush = (angle <= params.max_coplanar_deg) & (np.abs((na * (cb - ca)).sum(axis=1)) < 0.002)
+    folded = angle >= params.min_fold_rad
+    flush = (angle <= params.max_coplanar_rad) & (np.abs((na * (cb - ca)).sum(axis=1)) < 0.002)
     return np.where(folded, np.where(concave, 0, 1), np.where(flush, 2, 3)), na, nb
 
 
@@ -767,12 +770,12 @@ def _slab_corner(
 def _seen_well(
     fit: tuple[FloatArray, FloatArray, FloatArray, float], viewpoint: FloatArray, params: SeamParams
 ) -> bool:
-    """Both faces seen at less than ``max_incidence_deg``: beyond that, depth data are unreliable (and
+    """Both faces seen at less than ``max_incidence_rad``: beyond that, depth data are unreliable (and
     the simulator's ground truth stops there too)."""
     p, n_a, n_b, _ = fit
     v = viewpoint - p
     v /= max(float(np.linalg.norm(v)), 1e-12)
-    c = np.cos(np.radians(params.max_incidence_deg))
+    c = np.cos(params.max_incidence_rad)
     return bool(abs(n_a @ v) >= c and abs(n_b @ v) >= c)
 
 
@@ -918,7 +921,7 @@ def butt_from_surfaces(
     cb, nb, rms_b, _ = fit_plane_robust(pb[:: max(1, len(pb) // 4000)], sigma_gate=params.plane_gate_sigma)
     if max(rms_a, rms_b) > params.butt_max_rms_m:
         return None  # not plates: curved or mixed surfaces
-    if abs(na @ nb) < np.cos(np.radians(params.max_coplanar_deg)):
+    if abs(na @ nb) < np.cos(params.max_coplanar_rad):
         return None
     tol = 0.002 + 3 * max(rms_a, rms_b)
     if abs((cb - ca) @ na) > tol or abs((ca - cb) @ nb) > tol:

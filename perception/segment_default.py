@@ -3,7 +3,7 @@
 Method (seeded graph segmentation on geometry, finished by a watershed):
 1. Work at about ``work_width_px`` wide (every f-th pixel of the organized cloud).
 2. Edges = depth jumps, invalid depth, and folds where the surface normal turns by more than
-   ``max_normal_turn_deg`` across a few pixels.
+   ``max_normal_turn_rad`` across a few pixels.
 3. Connected components of the non-edge pixels are surface patches. Each prompt marks the patch it
    lands on; two prompts on one patch mark only a small disc each, so the watershed splits the patch.
    Large patches without a prompt are marked as background (table, fixtures, unprompted faces).
@@ -16,6 +16,7 @@ and does not lie on the support plane (the table the workpiece stands on).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,7 +34,7 @@ class GraphSegmenterParams:
     work_width_px: int = 640
     normal_window_px: int = 5
     normal_step_px: int = 2
-    max_normal_turn_deg: float = 25.0
+    max_normal_turn_rad: float = math.radians(25.0)
     depth_jump_m: float = 0.002
     depth_footprint_factor: float = 3.0
     color_edge_threshold: float = 14.0  # gradient of the blurred luminance (0-255) that separates surfaces; 0 = off
@@ -77,7 +78,7 @@ def surface_patches(
     f = _factor(points_camera.shape[1], params.work_width_px)
     pts = np.ascontiguousarray(points_camera[::f, ::f])
     normals = organized_normals(pts, window_px=params.normal_window_px, step_px=params.normal_step_px)
-    edges = normal_edges(normals, max_angle_deg=params.max_normal_turn_deg, step_px=params.normal_step_px)
+    edges = normal_edges(normals, max_angle_rad=params.max_normal_turn_rad, step_px=params.normal_step_px)
     edges |= depth_edges(pts, jump_m=params.depth_jump_m, footprint_factor=params.depth_footprint_factor)
     if color_rgb is not None and params.color_edge_threshold > 0:
         edges |= color_edges(color_rgb, f, params.color_edge_threshold)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -170,7 +171,6 @@ def wizard_setup(config: CellConfig, args: argparse.Namespace) -> tuple[WizardPa
     """The wizard's parameters from the config and the options, the config to build the cell from (with the
     nominal mount standing in for a result file that does not exist yet), and the result file."""
     from calibration.handeye import HandEyeMode
-    from calibration.planner import PlanParams
     from calibration.views import WizardParams
     from cell.errors import ConfigError
 
@@ -221,14 +221,7 @@ def wizard_setup(config: CellConfig, args: argparse.Namespace) -> tuple[WizardPa
     else:
         out = result_file
 
-    plan = PlanParams(
-        n_poses=poses,
-        standoff_m=cal.standoff_m,
-        standoff_jitter_m=cal.standoff_jitter_m,
-        min_tilt_deg=cal.min_tilt_deg,
-        max_tilt_deg=cal.max_tilt_deg,
-        max_roll_deg=cal.max_roll_deg,
-    )
+    plan = cal.plan_params(poses)
     params = WizardParams(
         board=cal.board.spec(),
         workspace=cal.workspace.workspace(),
@@ -314,8 +307,8 @@ class RichUI:
 
         p = params.plan
         table = Table(
-            title=f"{plan.n_views} views + 1 held out; stand-off {p.standoff_m:g} m, tilt {p.min_tilt_deg:g}-"
-            f"{p.max_tilt_deg:g} deg, seed {params.seed}",
+            title=f"{plan.n_views} views + 1 held out; stand-off {p.standoff_m:g} m, tilt "
+            f"{math.degrees(p.min_tilt_rad):g}-{math.degrees(p.max_tilt_rad):g} deg, seed {params.seed}",
             title_justify="left",
         )
         for name in ("view", "x mm", "y mm", "z mm", "board mm", "tilt deg"):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -104,7 +105,9 @@ def build_params(args: argparse.Namespace) -> Any:
         voxel_m=voxel_mm / 1000.0,
         method=args.method,
         torch=TorchParams(
-            step_m=args.step_mm / 1000.0, work_angle_deg=args.work_angle, travel_angle_deg=args.travel_angle
+            step_m=args.step_mm / 1000.0,
+            work_angle_rad=math.radians(args.work_angle),  # the flags are degrees, as operators read them
+            travel_angle_rad=math.radians(args.travel_angle),
         ),
     )
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -61,7 +63,9 @@ def test_poses_are_within_reach(cell):
 
 
 def test_views_follow_the_stand_off_and_tilt_limits_and_see_the_board(cell):
-    params = PlanParams(n_poses=15, standoff_m=0.4, standoff_jitter_m=0.05, min_tilt_deg=10, max_tilt_deg=35)
+    params = PlanParams(
+        n_poses=15, standoff_m=0.4, standoff_jitter_m=0.05, min_tilt_rad=math.radians(10), max_tilt_rad=math.radians(35)
+    )
     poses = plan(cell, seed=2, params=params)
     w, h = cell.board.size_m
     centre_board = np.array([w / 2, h / 2, 0.0])
@@ -138,7 +142,10 @@ def test_unreachable_board_is_refused(cell):
     ("kwargs", "reason"),
     [
         ({"n_poses": 2}, "at least 3 poses"),
-        ({"min_tilt_deg": 40, "max_tilt_deg": 30}, "min_tilt_deg <= max_tilt_deg"),
+        (
+            {"min_tilt_rad": math.radians(40), "max_tilt_rad": math.radians(30)},
+            "need 0 <= min_tilt <= max_tilt < 80 deg, got 40 deg, 30 deg",
+        ),
         ({"standoff_jitter_m": 0.5}, "standoff_m > standoff_jitter_m"),
     ],
 )

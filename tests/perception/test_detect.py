@@ -7,6 +7,7 @@ Accuracy bounds here are regression guards with margin; the targets themselves a
 from __future__ import annotations
 
 import json
+import math
 from functools import cache
 from pathlib import Path
 
@@ -150,10 +151,10 @@ def test_torch_angles_rotate_as_documented() -> None:
     z0 = X0[:3, 2]
     assert np.allclose(z0, np.array([0.0, 1.0, 1.0]) / np.sqrt(2))
     assert np.allclose(X0[:3, 0], [1.0, 0.0, 0.0])
-    Xp = torch_poses(p, na, nb, params=TorchParams(travel_angle_deg=10.0))[0]
+    Xp = torch_poses(p, na, nb, params=TorchParams(travel_angle_rad=math.radians(10.0)))[0]
     # push: the torch axis leans towards the travel direction by 10 degrees
     assert np.degrees(np.arcsin(Xp[:3, 2] @ [1.0, 0.0, 0.0])) == pytest.approx(10.0, abs=1e-9)
-    Xw = torch_poses(p, na, nb, params=TorchParams(work_angle_deg=15.0))[0]
+    Xw = torch_poses(p, na, nb, params=TorchParams(work_angle_rad=math.radians(15.0)))[0]
     assert np.degrees(np.arccos(Xw[:3, 2] @ z0)) == pytest.approx(15.0, abs=1e-9)
     assert Xw[:3, 2] @ [1.0, 0.0, 0.0] == pytest.approx(0.0, abs=1e-12)
 
