@@ -32,7 +32,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cell.errors import ConfigError
-from cell.planning import CellGeometry, Reach, WeldParams, WeldPath, X_world_base, plan_weld_path, world_seams
+from cell.planning import CellGeometry, Reach, WeldParams, WeldPath, plan_weld_path
+from cell.world_seams import X_world_base, world_seams
 from perception.errors import BadCapture
 from perception.seams import Frame, Seam, read_seams_json
 from perception.transforms import invert_X, xyzquat_from_X

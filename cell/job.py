@@ -49,7 +49,8 @@ from cell.config import (
     describe_validation_error,
 )
 from cell.errors import ConfigError
-from cell.planning import SeamFilter, WeldParams
+from cell.planning import WeldParams
+from cell.world_seams import SeamFilter
 
 PROMPTS_FROM_CAMERA = "camera"
 PROMPTS_AUTOMATIC = "automatic"
@@ -70,7 +71,7 @@ class CaptureSpec(PoseConfig):
 
 
 class SeamSelection(Section):
-    """``[seams]``: the seams to weld (:class:`cell.planning.SeamFilter`)."""
+    """``[seams]``: the seams to weld (:class:`cell.world_seams.SeamFilter`)."""
 
     ids: list[int] | None = None
     kinds: list[Literal["linear", "curved"]] | None = None

@@ -4,9 +4,8 @@ Frames (metres, radians):
 
 - ``base``: the robot base frame. The ground track's carriage carries the base, so the base moves with the
   track position ``t``; the robot is always commanded in it (``X_base_tcp``).
-- ``world``: the robot base frame with the track at 0. The carriage only translates the base along the unit
-  vector ``axis_base``, so ``X_world_base(t) = Trans(t * axis_base)`` (the convention of the fake camera).
-  Seams seen from several track positions meet here; ordering and merging work here.
+- ``world``: the robot base frame with the track at 0 (:mod:`cell.world_seams`: ``X_world_base(t)``, the seams of
+  several captures merged there); ordering (:mod:`cell.route`) works here.
 - ``torch``: a seam pose from the detector: z along the torch pointing into the joint, x the travel direction
   (:mod:`perception.seams`). The planner takes the detector's poses as *neutral* (run the detector with zero
   work and travel angles, its default) and applies :attr:`WeldParams.work_angle_rad` and
@@ -19,12 +18,8 @@ A seam pass is: ``approach`` (the arc-on TCP pose backed off ``approach_m`` alon
 ``arc_on`` (the first travel pose, reached along the torch axis; the arc is switched on there), the travel poses
 (the last one is ``arc_off``) and ``retract`` (the arc-off TCP pose backed off ``retract_m`` along -z).
 
-Ordering keeps air moves short: the cost of a route is the summed straight-line distance from each pass's retract
-pose to the next pass's approach pose (and from the start position to the first approach, when it is known);
-each seam may be welded in either direction. Up to ``exact_max`` seams the route is optimal (dynamic programming
-over subsets); above it, greedy nearest neighbour then a local search with 2-opt moves (segment reversal flips the
-direction of every seam in the segment; a one-seam segment is a direction flip) and relocation moves (one seam
-moved elsewhere, in either direction). Both are deterministic.
+Ordering keeps air moves short (:mod:`cell.route`): each pass's retract pose to the next pass's approach pose,
+each seam welded in whichever direction makes the route shortest.
 """
 
 from __future__ import annotations
@@ -42,49 +37,14 @@ from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation, Slerp
 
 from cell.errors import ConfigError, SafetyViolation
-from perception.seams import Seam, check_seam_path
+from cell.route import order_seams, route_length
+from cell.world_seams import DEFAULT_TRACK_AXIS_BASE, SeamFilter, WorldSeam, X_world_base, filter_seams
 from perception.transforms import make_X
 
 FloatArray = NDArray[np.float64]
 
-DEFAULT_TRACK_AXIS_BASE = (0.0, 1.0, 0.0)
-"""The direction the carriage moves the base, in the base frame (the fake camera's default)."""
-
-ID_STRIDE = 1000
-"""Seam ids of capture ``k`` are ``k * ID_STRIDE + detector id``, so capture 0 keeps the detector's ids."""
-
-_FLIP_XY = np.diag([-1.0, -1.0, 1.0, 1.0])  # right-multiplied: the same pose travelling the other way
-
 
 # ================================================================================================ parameters
-@dataclass(frozen=True)
-class SeamFilter:
-    """Which seams to weld. ``ids``: planner seam ids (see :data:`ID_STRIDE`), None = all; ``kinds``: detector
-    kinds (``"linear"``, ``"curved"``), None = all; ``min_length_m``: shorter seams are skipped."""
-
-    ids: frozenset[int] | None = None
-    kinds: frozenset[str] | None = None
-    min_length_m: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.ids is not None:
-            object.__setattr__(self, "ids", frozenset(int(i) for i in self.ids))
-        if self.kinds is not None:
-            object.__setattr__(self, "kinds", frozenset(str(k) for k in self.kinds))
-        if not (math.isfinite(self.min_length_m) and self.min_length_m >= 0.0):
-            raise ConfigError(f"seam filter: min_length_m must be a finite number >= 0, got {self.min_length_m}")
-
-    def reason_to_skip(self, seam: WorldSeam) -> str | None:
-        """Why ``seam`` is filtered out, or None when it is welded."""
-        if self.ids is not None and seam.id not in self.ids:
-            return f"id {seam.id} not in the selected ids {sorted(self.ids)}"
-        if self.kinds is not None and seam.kind not in self.kinds:
-            return f"kind {seam.kind!r} not in the selected kinds {sorted(self.kinds)}"
-        if seam.length_m < self.min_length_m:
-            return f"length {seam.length_m:.4f} m below min_length_m {self.min_length_m:.4f} m"
-        return None
-
-
 @dataclass(frozen=True)
 class WeldParams:
     """Welding parameters, SI. Speeds in m/s, distances in m, angles in rad, times in s.
@@ -201,228 +161,6 @@ class CellGeometry:
     @property
     def axis_base(self) -> FloatArray:
         return self.track.axis_base if self.track is not None else np.array(DEFAULT_TRACK_AXIS_BASE)
-
-
-def X_world_base(track_position_m: float, axis_base: ArrayLike) -> FloatArray:
-    """(4, 4) pose of the robot base in the world frame with the carriage at ``track_position_m``."""
-    return make_X(np.eye(3), float(track_position_m) * np.asarray(axis_base, dtype=np.float64).reshape(3))
-
-
-# ================================================================================================ seams in world
-@dataclass(frozen=True)
-class WorldSeam:
-    """A seam in the world frame (the base frame with the track at 0): a :class:`perception.seams.Seam` moved
-    there by :func:`world_seams`, checked by the same rule (:func:`perception.seams.check_seam_path`).
-
-    ``points_world``: (N, 3) path, metres, ordered along the seam; ``X_world_torch``: (N, 4, 4) neutral torch
-    poses there; ``sources``: the (capture index, detector seam id) pairs it was built from.
-    """
-
-    id: int
-    kind: str
-    points_world: FloatArray
-    X_world_torch: FloatArray
-    confidence: float
-    sources: tuple[tuple[int, int], ...]
-
-    def __post_init__(self) -> None:
-        pts, poses = check_seam_path(
-            self.points_world,
-            self.X_world_torch,
-            what=f"seam {self.id}:",
-            points_name="points_world",
-            poses_name="X_world_torch",
-        )
-        object.__setattr__(self, "points_world", pts)
-        object.__setattr__(self, "X_world_torch", poses)
-
-    @property
-    def length_m(self) -> float:
-        return polyline_length(self.points_world)
-
-    def reversed(self) -> WorldSeam:
-        """The same seam ordered the other way (torch x and y flip, z stays)."""
-        return WorldSeam(
-            self.id,
-            self.kind,
-            self.points_world[::-1].copy(),
-            self.X_world_torch[::-1] @ _FLIP_XY,
-            self.confidence,
-            self.sources,
-        )
-
-
-def polyline_length(points: ArrayLike) -> float:
-    p = np.asarray(points, dtype=np.float64)
-    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
-
-
-def world_seams(
-    seams: Sequence[Seam],
-    *,
-    track_position_m: float = 0.0,
-    axis_base: ArrayLike = DEFAULT_TRACK_AXIS_BASE,
-    capture_index: int = 0,
-) -> list[WorldSeam]:
-    """Base-frame seams of one capture (taken with the carriage at ``track_position_m``) in the world frame.
-
-    Raises ConfigError for a camera-frame seam: planning needs the capture's robot pose and a hand-eye result.
-    """
-    X_wb = X_world_base(track_position_m, axis_base)
-    out = []
-    for s in seams:
-        if s.frame != "base":
-            raise ConfigError(
-                f"seam {s.id} of capture {capture_index} is in the {s.frame!r} frame; planning needs base-frame "
-                "seams (the capture needs the robot pose, and the cell a [hand_eye] result)"
-            )
-        moved = s.transformed(X_wb, "base")
-        out.append(
-            WorldSeam(
-                id=capture_index * ID_STRIDE + s.id,
-                kind=s.kind,
-                points_world=moved.points,
-                X_world_torch=moved.poses,
-                confidence=float(s.confidence),
-                sources=((capture_index, s.id),),
-            )
-        )
-    return out
-
-
-def collect_seams(
-    captures: Sequence[tuple[float, Sequence[Seam]]],
-    *,
-    axis_base: ArrayLike = DEFAULT_TRACK_AXIS_BASE,
-    tol_m: float = 0.003,
-    min_overlap_m: float = 0.02,
-    max_axis_angle_rad: float = math.radians(30.0),
-) -> list[WorldSeam]:
-    """Seams of several captures ``(track_position_m, seams)`` in the world frame, duplicates merged."""
-    all_seams: list[WorldSeam] = []
-    for k, (t, seams) in enumerate(captures):
-        all_seams.extend(world_seams(seams, track_position_m=t, axis_base=axis_base, capture_index=k))
-    return merge_seams(all_seams, tol_m=tol_m, min_overlap_m=min_overlap_m, max_axis_angle_rad=max_axis_angle_rad)
-
-
-def _project_onto_polyline(points: FloatArray, line: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Distance of each (M, 3) point to the polyline (K, 3), and its arc-length parameter along it.
-
-    The first and last segments are extended, so a point before the start gets s < 0 and one past the end
-    s > length; its distance is still measured to the polyline itself (clamped).
-    """
-    a, b = line[:-1], line[1:]
-    ab = b - a
-    seg_len = np.linalg.norm(ab, axis=1)
-    s0 = np.concatenate([[0.0], np.cumsum(seg_len)])
-    denom = np.maximum(seg_len**2, 1e-18)
-    u = ((points[:, None, :] - a[None]) * ab[None]).sum(axis=2) / denom[None]  # (M, K-1)
-    u_clamped = np.clip(u, 0.0, 1.0)
-    closest = a[None] + u_clamped[..., None] * ab[None]
-    dist = np.linalg.norm(points[:, None, :] - closest, axis=2)
-    k = np.argmin(dist, axis=1)
-    rows = np.arange(len(points))
-    s = s0[k] + u_clamped[rows, k] * seg_len[k]
-    # beyond the ends: extrapolate along the end segments
-    before = (k == 0) & (u[:, 0] < 0)
-    s[before] = u[before, 0] * seg_len[0]
-    last = len(seg_len) - 1
-    after = (k == last) & (u[:, last] > 1)
-    s[after] = s0[last] + u[after, last] * seg_len[last]
-    return dist[rows, k], s
-
-
-def seam_overlap_m(
-    a: WorldSeam, b: WorldSeam, *, tol_m: float, max_axis_angle_rad: float = math.radians(30.0)
-) -> float:
-    """Length (metres, along ``b``) over which ``b`` lies within ``tol_m`` of ``a`` with a torch axis within
-    ``max_axis_angle_rad`` of ``a``'s there. Two fillets either side of a thin plate never overlap."""
-    dist, s = _project_onto_polyline(b.points_world, a.points_world)
-    near = dist <= tol_m
-    if near.sum() < 2:
-        return 0.0
-    # torch axis agreement at each near point: compare with a's pose at the nearest vertex
-    a_s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(a.points_world, axis=0), axis=1))])
-    idx = np.clip(np.searchsorted(a_s, s), 0, len(a_s) - 1)
-    za = a.X_world_torch[idx, :3, 2]
-    zb = b.X_world_torch[:, :3, 2]
-    cos = np.clip((za * zb).sum(axis=1), -1.0, 1.0)
-    near &= np.arccos(cos) <= max_axis_angle_rad
-    seg = np.linalg.norm(np.diff(b.points_world, axis=0), axis=1)
-    return float(seg[near[:-1] & near[1:]].sum())
-
-
-def _union(a: WorldSeam, b: WorldSeam) -> WorldSeam:
-    """One seam covering both extents: ``a``'s points, with ``b``'s points before a's start and past its end."""
-    # orient b like a (mean tangents)
-    ta = a.points_world[-1] - a.points_world[0]
-    tb = b.points_world[-1] - b.points_world[0]
-    if float(ta @ tb) < 0:
-        b = b.reversed()
-    _, s = _project_onto_polyline(b.points_world, a.points_world)
-    length_a = a.length_m
-    pre = np.flatnonzero(s < 0.0)
-    post = np.flatnonzero(s > length_a)
-    pre = pre[np.argsort(s[pre], kind="stable")]
-    post = post[np.argsort(s[post], kind="stable")]
-    points = np.concatenate([b.points_world[pre], a.points_world, b.points_world[post]])
-    poses = np.concatenate([b.X_world_torch[pre], a.X_world_torch, b.X_world_torch[post]])
-    return WorldSeam(
-        id=min(a.id, b.id),
-        kind=a.kind if a.kind == b.kind else "curved",
-        points_world=points,
-        X_world_torch=poses,
-        confidence=max(a.confidence, b.confidence),
-        sources=tuple(sorted(set(a.sources) | set(b.sources))),
-    )
-
-
-def merge_seams(
-    seams: Sequence[WorldSeam],
-    *,
-    tol_m: float = 0.003,
-    min_overlap_m: float = 0.02,
-    max_axis_angle_rad: float = math.radians(30.0),
-) -> list[WorldSeam]:
-    """Merge seams seen in several captures: two seams whose paths lie within ``tol_m`` of each other over at least
-    ``min_overlap_m`` (with torch axes within ``max_axis_angle_rad``) become one covering the union of their
-    extents, so no seam is welded twice. The longer seam's points are kept where they overlap. Repeats until no
-    pair overlaps; the result is sorted by id (a merged seam takes the smaller id)."""
-    if not (tol_m > 0 and min_overlap_m > 0):
-        raise ValueError(f"tol_m and min_overlap_m must be > 0, got {tol_m}, {min_overlap_m}")
-    work = sorted(seams, key=lambda s: s.id)
-    merged = True
-    while merged:
-        merged = False
-        for i in range(len(work)):
-            for j in range(i + 1, len(work)):
-                a, b = work[i], work[j]
-                overlap = max(
-                    seam_overlap_m(a, b, tol_m=tol_m, max_axis_angle_rad=max_axis_angle_rad),
-                    seam_overlap_m(b, a, tol_m=tol_m, max_axis_angle_rad=max_axis_angle_rad),
-                )
-                if overlap >= min_overlap_m:
-                    base, other = (a, b) if a.length_m >= b.length_m else (b, a)
-                    union = _union(base, other)
-                    work = [s for k, s in enumerate(work) if k not in (i, j)] + [union]
-                    work.sort(key=lambda s: s.id)
-                    merged = True
-                    break
-            if merged:
-                break
-    return work
-
-
-def filter_seams(seams: Sequence[WorldSeam], seam_filter: SeamFilter) -> tuple[list[WorldSeam], list[tuple[int, str]]]:
-    """(seams to weld, [(id, reason) skipped])."""
-    kept, skipped = [], []
-    for s in seams:
-        reason = seam_filter.reason_to_skip(s)
-        if reason is None:
-            kept.append(s)
-        else:
-            skipped.append((s.id, reason))
-    return kept, skipped
 
 
 # ================================================================================================ the path
@@ -649,153 +387,6 @@ def _build_pass(
     )
 
 
-# ================================================================================================ ordering
-Route = list[tuple[int, bool]]
-"""(seam index, reversed) in welding order."""
-
-
-def route_length(route: Route, entries: FloatArray, exits: FloatArray, p_start: FloatArray | None = None) -> float:
-    """Summed air-move length of ``route``. ``entries``/``exits``: (n, 2, 3) approach and retract positions of each
-    seam welded forward ([:, 0]) and reversed ([:, 1]); ``p_start``: (3,) or None for a free start."""
-    total = 0.0
-    prev = None if p_start is None else np.asarray(p_start, dtype=np.float64)
-    for i, rev in route:
-        if prev is not None:
-            total += float(np.linalg.norm(prev - entries[i, int(rev)]))
-        prev = exits[i, int(rev)]
-    return total
-
-
-def order_seams(
-    entries: ArrayLike, exits: ArrayLike, *, p_start: ArrayLike | None = None, exact_max: int = 10
-) -> Route:
-    """The welding order and direction of each seam minimising :func:`route_length` (see the module docstring):
-    exact up to ``exact_max`` seams, nearest neighbour + local search above. Deterministic (ties: lowest index)."""
-    E = np.asarray(entries, dtype=np.float64).reshape(-1, 2, 3)
-    Q = np.asarray(exits, dtype=np.float64).reshape(-1, 2, 3)
-    if E.shape != Q.shape:
-        raise ValueError(f"entries and exits must have the same shape, got {E.shape} and {Q.shape}")
-    start = None if p_start is None else np.asarray(p_start, dtype=np.float64).reshape(3)
-    n = len(E)
-    if n == 0:
-        return []
-    if n <= exact_max:
-        return _order_exact(E, Q, start)
-    return improve_route(_order_nearest(E, Q, start), E, Q, start)
-
-
-def _cost_tables(E: FloatArray, Q: FloatArray, start: FloatArray | None) -> tuple[FloatArray, FloatArray]:
-    """States ``b = 2 * seam + reversed``: ``C[a, b]`` from the exit of a to the entry of b; ``S[b]`` from start."""
-    m = 2 * len(E)
-    ends, outs = E.reshape(m, 3), Q.reshape(m, 3)
-    C = np.linalg.norm(outs[:, None, :] - ends[None, :, :], axis=2)
-    S = np.zeros(m) if start is None else np.linalg.norm(ends - start, axis=1)
-    return C, S
-
-
-def _order_exact(E: FloatArray, Q: FloatArray, start: FloatArray | None) -> Route:
-    """Held-Karp over (subset of seams, last state)."""
-    n = len(E)
-    m = 2 * n
-    C, S = _cost_tables(E, Q, start)
-    full = (1 << n) - 1
-    D = np.full((1 << n, m), np.inf)
-    parent = np.full((1 << n, m), -1, dtype=np.int64)
-    for b in range(m):
-        D[1 << (b // 2), b] = S[b]
-    seam_of = np.arange(m) // 2
-    for mask in range(1, full + 1):
-        row = D[mask]
-        if not np.isfinite(row).any():
-            continue
-        cand = row[:, None] + C  # (from, to)
-        best_from = np.argmin(cand, axis=0)
-        best = cand[best_from, np.arange(m)]
-        for b in range(m):
-            j = seam_of[b]
-            if mask >> j & 1:
-                continue
-            nm = mask | (1 << j)
-            if best[b] < D[nm, b]:
-                D[nm, b] = best[b]
-                parent[nm, b] = best_from[b]
-    b = int(np.argmin(D[full]))
-    route: Route = []
-    mask = full
-    while b >= 0:
-        route.append((b // 2, bool(b % 2)))
-        prev = int(parent[mask, b])
-        mask &= ~(1 << (b // 2))
-        b = prev
-    route.reverse()
-    return route
-
-
-def _nearest_from(first: int, C: FloatArray, n: int) -> list[int]:
-    states = [first]
-    left = np.ones(n, dtype=bool)
-    left[first // 2] = False
-    for _ in range(n - 1):
-        d = C[states[-1]].copy()
-        d[np.repeat(~left, 2)] = np.inf
-        b = int(np.argmin(d))
-        states.append(b)
-        left[b // 2] = False
-    return states
-
-
-def _states_cost(states: list[int] | NDArray[np.int64], C: FloatArray, S: FloatArray) -> float:
-    s = np.asarray(states, dtype=np.int64)
-    return float(S[s[0]] + C[s[:-1], s[1:]].sum())
-
-
-def _order_nearest(E: FloatArray, Q: FloatArray, start: FloatArray | None) -> Route:
-    """Greedy nearest neighbour: from ``start``, or (free start) the best of every possible first seam."""
-    n = len(E)
-    C, S = _cost_tables(E, Q, start)
-    if start is not None:
-        states = _nearest_from(int(np.argmin(S)), C, n)
-    else:
-        candidates = [_nearest_from(b, C, n) for b in range(2 * n)]
-        states = min(candidates, key=lambda st: _states_cost(st, C, S))  # min keeps the first of equals
-    return [(b // 2, bool(b % 2)) for b in states]
-
-
-def improve_route(route: Route, entries: ArrayLike, exits: ArrayLike, p_start: ArrayLike | None = None) -> Route:
-    """Local search from ``route`` until no move shortens it, taking the best move each round. Moves: 2-opt
-    (reverse a segment, flipping every seam in it; a one-seam segment is a direction flip) and relocation (take
-    one seam out and put it back anywhere, in either direction). Returns a local optimum for both."""
-    E = np.asarray(entries, dtype=np.float64).reshape(-1, 2, 3)
-    Q = np.asarray(exits, dtype=np.float64).reshape(-1, 2, 3)
-    start = None if p_start is None else np.asarray(p_start, dtype=np.float64).reshape(3)
-    C, S = _cost_tables(E, Q, start)
-    best = [2 * i + int(rev) for i, rev in route]
-    best_len = _states_cost(best, C, S)
-    n = len(best)
-    while True:
-        improved: list[int] | None = None
-        improved_len = best_len
-        for cand in _neighbours(best, n):
-            length = _states_cost(cand, C, S)
-            if length < improved_len - 1e-12:
-                improved, improved_len = cand, length
-        if improved is None:
-            return [(b // 2, bool(b % 2)) for b in best]
-        best, best_len = improved, improved_len
-
-
-def _neighbours(states: list[int], n: int) -> Iterator[list[int]]:
-    for i in range(n):
-        for j in range(i, n):
-            yield states[:i] + [b ^ 1 for b in reversed(states[i : j + 1])] + states[j + 1 :]
-    for i in range(n):
-        rest = states[:i] + states[i + 1 :]
-        for j in range(n):
-            for b in (states[i], states[i] ^ 1):
-                if j != i or b != states[i]:
-                    yield [*rest[:j], b, *rest[j:]]
-
-
 # ================================================================================================ track and reach
 def reach_distances_m(points_world: ArrayLike, track_position_m: float, geometry: CellGeometry) -> FloatArray:
     """Distance of each (N, 3) world point from the reach centre with the carriage at ``track_position_m``."""
@@ -875,8 +466,9 @@ def plan_weld_path(
     """Plan every seam that passes ``params.seam_filter``: direction and order (short air moves), pass geometry,
     and a track position per pass (the carriage moves only when a pass is out of reach where it stands).
 
-    ``seams``: world-frame seams (:func:`world_seams`, :func:`collect_seams`); ``track_position_m``: where the
-    carriage is now; ``p_world_start``: (3,) the TCP position now, in world (None: the route may start anywhere).
+    ``seams``: world-frame seams (:func:`cell.world_seams.world_seams`, :func:`cell.world_seams.collect_seams`);
+    ``track_position_m``: where the carriage is now; ``p_world_start``: (3,) the TCP position now, in world
+    (None: the route may start anywhere).
     Raises SafetyViolation when a seam cannot be brought into reach. The result still has to pass
     :func:`cell.safety.validate`.
     """

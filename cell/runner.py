@@ -4,7 +4,7 @@ One :class:`JobRunner` owns one :class:`cell.factory.Cell` (connected drivers), 
 :meth:`JobRunner.run` takes a :class:`cell.job.Job` through the machine: homing (robot to ``[home]``, track to its
 home position), for each capture pose a track move and a robot move, a camera frame with the robot's measured
 ``X_base_tool``, the carriage's measured position and the configured hand-eye ``X_tool_camera``, detection
-(:func:`perception.detect.detect`), planning (:func:`cell.planning.collect_seams` merges the seams of all captures
+(:func:`perception.detect.detect`), planning (:func:`cell.world_seams.collect_seams` merges the seams of all captures
 in the world frame, :func:`cell.planning.plan_weld_path` orders them), safety validation
 (:func:`cell.safety.validate`), approval, then for each pass: track move (when the pass needs another carriage
 position), air move to the approach pose, approach to the arc-on pose, arc on (the digital output), the travel poses
@@ -48,19 +48,9 @@ from cell.factory import Cell
 from cell.job import PROMPTS_AUTOMATIC, Job, detect_params, weld_params
 from cell.journal import Journal
 from cell.machine import CellActions, CellMachine, CellState
-from cell.planning import (
-    CellGeometry,
-    Reach,
-    SeamPass,
-    TrackAxis,
-    WeldParams,
-    WeldPath,
-    WorldSeam,
-    X_world_base,
-    collect_seams,
-    plan_weld_path,
-)
+from cell.planning import CellGeometry, Reach, SeamPass, TrackAxis, WeldParams, WeldPath, plan_weld_path
 from cell.safety import SafetyLimits, validate
+from cell.world_seams import WorldSeam, X_world_base, collect_seams
 from drivers.errors import ConnectionLost, DeviceTimeout, DriverError, EmergencyStop, ProtectiveStop, TrackFault
 from drivers.protocols import RobotMode
 from perception.capture import Capture

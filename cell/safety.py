@@ -26,7 +26,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cell.errors import ConfigError, SafetyViolation
-from cell.planning import CellGeometry, MoveKind, SeamPass, Waypoint, WeldPath, X_world_base
+from cell.planning import CellGeometry, MoveKind, SeamPass, Waypoint, WeldPath
+from cell.world_seams import X_world_base
 from perception.transforms import TransformError, check_X, rotation_angle_rad
 
 FloatArray = NDArray[np.float64]

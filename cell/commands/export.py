@@ -63,8 +63,8 @@ def _plan(args: argparse.Namespace, data: Any) -> Any:
     if args.config:
         from cell.config import load_config
         from cell.job import weld_params
-        from cell.planning import SeamFilter
         from cell.runner import safety_limits
+        from cell.world_seams import SeamFilter
 
         config = load_config(args.config)
         job_welding, seam_filter = config.welding, SeamFilter()

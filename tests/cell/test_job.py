@@ -14,8 +14,9 @@ import pytest
 from cell.config import DetectionConfig, WeldingConfig, config_from_dict, load_config
 from cell.errors import ConfigError
 from cell.job import detect_params, job_from_text, load_job, weld_params
-from cell.planning import SeamFilter, WeldParams
+from cell.planning import WeldParams
 from cell.runner import safety_limits
+from cell.world_seams import SeamFilter
 from perception.transforms import X_from_ur_pose, X_from_xyzwpr_mm_deg, invert_X, transform_points
 
 REPO = Path(__file__).resolve().parents[2]
@@ -60,8 +61,9 @@ def test_the_ribs_job_sees_and_plans_every_fillet_of_the_ribs_scene(example: str
     from dataclasses import replace
 
     from cell.factory import build_camera
-    from cell.planning import X_world_base, collect_seams, plan_weld_path
+    from cell.planning import plan_weld_path
     from cell.safety import validate
+    from cell.world_seams import X_world_base, collect_seams
     from perception.detect import detect
 
     config = load_config(EXAMPLES / example)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
@@ -13,83 +12,20 @@ from cell.planning import (
     CellGeometry,
     MoveKind,
     Reach,
-    SeamFilter,
     TrackAxis,
     WeldParams,
-    X_world_base,
     choose_track_position,
-    collect_seams,
-    improve_route,
-    merge_seams,
-    order_seams,
     pass_poses_world,
     plan_weld_path,
-    route_length,
-    world_seams,
 )
-from perception.seams import Seam
-from perception.transforms import make_X
+from cell.route import route_length
+from cell.world_seams import SeamFilter, X_world_base, collect_seams, world_seams
+from tests.cell.planning_helpers import brute_force, make_seam
 
-DOWN = (0.0, 0.0, -1.0)
 UP = np.array([0.0, 0.0, 1.0])
 
 
-def make_seam(
-    seam_id: int,
-    p0: tuple[float, float, float],
-    p1: tuple[float, float, float],
-    *,
-    z: tuple[float, float, float] = DOWN,
-    step_m: float = 0.005,
-    frame: str = "base",
-    kind: str = "linear",
-) -> Seam:
-    """A straight seam from p0 to p1 with neutral torch poses: x along the seam, z as given (made orthogonal)."""
-    a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
-    n = max(2, math.ceil(np.linalg.norm(b - a) / step_m) + 1)
-    pts = np.linspace(a, b, n)
-    x = (b - a) / np.linalg.norm(b - a)
-    zz = np.asarray(z, dtype=float)
-    zz = zz - (zz @ x) * x
-    zz /= np.linalg.norm(zz)
-    y = np.cross(zz, x)
-    R = np.column_stack([x, y, zz])
-    poses = np.stack([make_X(R, p) for p in pts])
-    return Seam(seam_id, kind, pts, poses, float(np.linalg.norm(b - a)), 0.9, frame=frame)  # type: ignore[arg-type]
-
-
-def brute_force(entries: np.ndarray, exits: np.ndarray, p_start: np.ndarray | None) -> float:
-    """The shortest air-move length over every order and every direction of every seam."""
-    n = len(entries)
-    C = np.linalg.norm(exits[:, :, None, None, :] - entries[None, None, :, :, :], axis=-1).tolist()
-    S = [[0.0, 0.0]] * n if p_start is None else np.linalg.norm(entries - p_start, axis=-1).tolist()
-    best = math.inf
-    for perm in itertools.permutations(range(n)):
-        for dirs in itertools.product((0, 1), repeat=n):
-            cost = S[perm[0]][dirs[0]]
-            for k in range(n - 1):
-                cost += C[perm[k]][dirs[k]][perm[k + 1]][dirs[k + 1]]
-            best = min(best, cost)
-    return best
-
-
 GEOMETRY = CellGeometry(Reach(radius_m=1.2, preferred_m=0.7))
-
-
-# ------------------------------------------------------------------------------------------------ ordering
-@pytest.mark.parametrize("n", [1, 2, 3, 4, 5, 6])
-@pytest.mark.parametrize("with_start", [False, True])
-def test_order_is_optimal_on_small_random_cases(n: int, with_start: bool) -> None:
-    rng = np.random.default_rng(100 * n + with_start)
-    for _ in range(3):
-        entries = rng.uniform(-1, 1, size=(n, 2, 3))
-        exits = rng.uniform(-1, 1, size=(n, 2, 3))
-        start = rng.uniform(-1, 1, size=3) if with_start else None
-        route = order_seams(entries, exits, p_start=start)
-        assert sorted(i for i, _ in route) == list(range(n))
-        assert route_length(route, entries, exits, start) == pytest.approx(
-            brute_force(entries, exits, start), abs=1e-12
-        )
 
 
 def test_planned_path_order_and_directions_are_optimal_for_real_seams() -> None:
@@ -115,54 +51,6 @@ def test_planned_path_order_and_directions_are_optimal_for_real_seams() -> None:
     # deterministic
     again = plan_weld_path(seams, params, geometry=GEOMETRY, p_world_start=start)
     assert [(p.seam_id, p.reversed) for p in again.passes] == route
-
-
-def test_heuristic_for_many_seams_is_a_local_optimum() -> None:
-    rng = np.random.default_rng(7)
-    n = 14
-    entries = rng.uniform(-1, 1, size=(n, 2, 3))
-    exits = entries + rng.uniform(-0.2, 0.2, size=(n, 2, 3))
-    start = np.zeros(3)
-    route = order_seams(entries, exits, p_start=start, exact_max=10)
-    length = route_length(route, entries, exits, start)
-    assert sorted(i for i, _ in route) == list(range(n))
-    # no segment reversal (incl. single flips) and no relocation of one seam improves it
-    for i in range(n):
-        for j in range(i, n):
-            cand = route[:i] + [(k, not r) for k, r in reversed(route[i : j + 1])] + route[j + 1 :]
-            assert route_length(cand, entries, exits, start) >= length - 1e-12
-        rest = route[:i] + route[i + 1 :]
-        for j in range(n):
-            for rev in (False, True):
-                cand = [*rest[:j], (route[i][0], rev), *rest[j:]]
-                assert route_length(cand, entries, exits, start) >= length - 1e-12
-    assert improve_route(route, entries, exits, start) == route
-    # from a poor start (the identity order) the local search only shortens the route
-    identity = [(i, False) for i in range(n)]
-    improved = improve_route(identity, entries, exits, start)
-    assert route_length(improved, entries, exits, start) < route_length(identity, entries, exits, start)
-    # the exact solver (forced) can only be better or equal
-    exact = order_seams(entries[:9], exits[:9], p_start=start, exact_max=10)
-    heuristic = order_seams(entries[:9], exits[:9], p_start=start, exact_max=0)
-    assert (
-        route_length(exact, entries[:9], exits[:9], start)
-        <= route_length(heuristic, entries[:9], exits[:9], start) + 1e-12
-    )
-
-
-def test_heuristic_welds_collinear_seams_in_a_row() -> None:
-    n = 12
-    order = np.random.default_rng(3).permutation(n)
-    entries = np.zeros((n, 2, 3))
-    exits = np.zeros((n, 2, 3))
-    for slot, k in enumerate(order):
-        a, b = np.array([0.1 * k, 0, 0]), np.array([0.1 * k + 0.05, 0, 0])
-        entries[slot] = [a, b]
-        exits[slot] = [b, a]
-    route = order_seams(entries, exits, p_start=np.array([-0.1, 0, 0]), exact_max=5)
-    assert route_length(route, entries, exits, np.array([-0.1, 0, 0])) == pytest.approx(0.1 + 0.05 * (n - 1))
-    assert [int(order[i]) for i, _ in route] == list(range(n))
-    assert not any(r for _, r in route)
 
 
 # ------------------------------------------------------------------------------------------------ pass geometry
@@ -309,13 +197,6 @@ def test_a_seam_seen_in_two_captures_is_welded_once_over_the_union_of_its_extent
     assert ends[0] + t == pytest.approx(0.0, abs=1e-3) and ends[1] + t == pytest.approx(0.6, abs=1e-3)
 
 
-def test_crossing_or_touching_seams_are_not_merged() -> None:
-    a = world_seams([make_seam(0, (0.0, 0.0, 0.0), (0.3, 0.0, 0.0))])[0]
-    crossing = world_seams([make_seam(1, (0.15, -0.1, 0.0), (0.15, 0.1, 0.0))])[0]
-    continuing = world_seams([make_seam(2, (0.3, 0.0, 0.0), (0.5, 0.0, 0.0))])[0]  # shares only an end point
-    assert len(merge_seams([a, crossing, continuing], tol_m=0.003, min_overlap_m=0.02)) == 3
-
-
 # ------------------------------------------------------------------------------------------------ inputs
 def test_seam_filter_by_ids_kind_and_length() -> None:
     seams = world_seams(
@@ -349,9 +230,3 @@ def test_camera_frame_seams_and_bad_params_are_refused() -> None:
 def test_nothing_to_weld_is_an_empty_path() -> None:
     path = plan_weld_path([], WeldParams(), geometry=GEOMETRY, p_world_start=[0.3, 0.0, 0.4])
     assert path.passes == () and path.air_length_m == 0.0 and path.summary()["weld_length_m"] == 0.0
-
-
-def test_capture_ids_are_offset_per_capture() -> None:
-    seams = world_seams([make_seam(3, (0.5, 0, 0), (0.6, 0, 0))], capture_index=2, track_position_m=0.25)
-    assert seams[0].id == 2003 and seams[0].sources == ((2, 3),)
-    np.testing.assert_allclose(seams[0].points_world[0], [0.5, 0.25, 0.0])

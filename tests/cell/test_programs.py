@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from cell.errors import SafetyViolation
-from cell.planning import CellGeometry, MoveKind, Reach, TrackAxis, WeldParams, WeldPath, plan_weld_path, world_seams
+from cell.planning import CellGeometry, MoveKind, Reach, TrackAxis, WeldParams, WeldPath, plan_weld_path
 from cell.programs import (
     fanuc_ls_program,
     fmt_fixed,
@@ -20,6 +20,7 @@ from cell.programs import (
     sanitize_name,
     urscript_program,
 )
+from cell.world_seams import world_seams
 from perception.seams import Seam
 from perception.transforms import X_from_ur_pose, make_X, rotation_angle_rad, ur_pose_from_X, xyzwpr_mm_deg_from_X
 

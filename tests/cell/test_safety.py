@@ -10,8 +10,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cell.errors import SafetyViolation
-from cell.planning import CellGeometry, Reach, TrackAxis, WeldParams, WeldPath, plan_weld_path, world_seams
+from cell.planning import CellGeometry, Reach, TrackAxis, WeldParams, WeldPath, plan_weld_path
 from cell.safety import SafetyLimits, validate
+from cell.world_seams import world_seams
 from perception.seams import Seam
 from perception.transforms import make_X
 
