@@ -21,6 +21,9 @@ is an error, not a string to coerce); integers are accepted where a float is exp
 No address or hardware default lives here: hosts come from the file. Relative paths (``hand_eye.path``,
 ``camera.playback``) are relative to the file's folder.
 
+The ``[hand_eye]`` tables live in :mod:`cell.config_hand_eye`; the :class:`cell.sections.Section` base and the
+error messages in :mod:`cell.sections` (the job file uses them too).
+
 Extending: add a section as a model deriving from :class:`Section` and a field on :class:`CellConfig` (make it
 optional with a default so existing files stay valid); :func:`load_config` needs no change.
 """
@@ -30,19 +33,20 @@ from __future__ import annotations
 import ipaddress
 import math
 import os
-import re
 import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, field_validator, model_validator
 
+from cell.config_hand_eye import HandEyeConfig
 from cell.errors import ConfigError
+from cell.sections import Section, check_matrix, describe_validation_error, toml_context
 from perception.transforms import TransformError, check_X
 
 if TYPE_CHECKING:
-    from calibration.planner import PlanParams
+    pass
 
 FANUC_RMI_PORT = 16001
 """FANUC RMI's well-known connect port (a protocol constant, used when ``robot.port`` is not given)."""
@@ -54,20 +58,9 @@ RobotKind = Literal["ur", "fanuc", "fake-ur", "fake-fanuc"]
 TrackKind = Literal["modbus", "fake", "none"]
 CameraKind = Literal["oakd", "fake"]
 NoiseModel = Literal["none", "stereo", "structured"]
-HandEyeModeName = Literal["eye_in_hand", "eye_to_hand"]
 
 CHARUCO_SCENE = "charuco"
 """The fake camera's scene that shows the calibration board of ``[hand_eye.calibration.board]``."""
-
-
-def _check_matrix(value: list[list[float]] | None, name: str) -> None:
-    """ValueError (for pydantic) unless ``value`` is None or a proper 4x4 rigid transform."""
-    if value is None:
-        return
-    try:
-        check_X(np.asarray(value, dtype=np.float64), name=name)
-    except (TransformError, ValueError) as err:
-        raise ValueError(str(err)) from err
 
 
 def is_loopback(host: str) -> bool:
@@ -77,12 +70,6 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
-
-
-class Section(BaseModel):
-    """Base of every config table: strict types, unknown keys refused, immutable once read."""
-
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False)
 
 
 class RobotConfig(Section):
@@ -244,8 +231,8 @@ class CameraConfig(Section):
         simulated = ("X_tool_camera", "X_base_board", "blur_sigma_px", "image_noise")
         if self.kind == "oakd" and any(getattr(self, key) is not None for key in simulated):
             raise ValueError(f"{', '.join(simulated)} describe the simulator: they are for kind = 'fake'")
-        _check_matrix(self.X_tool_camera, "X_tool_camera")
-        _check_matrix(self.X_base_board, "X_base_board")
+        check_matrix(self.X_tool_camera, "X_tool_camera")
+        check_matrix(self.X_base_board, "X_base_board")
         if self.kind == "fake":
             if self.scene == CHARUCO_SCENE and self.X_base_board is None:
                 raise ValueError(f"scene = {CHARUCO_SCENE!r} needs X_base_board, where the board lies (base frame)")
@@ -257,172 +244,6 @@ class CameraConfig(Section):
     @property
     def size(self) -> tuple[int, int]:
         return (self.resolution[0], self.resolution[1])
-
-
-class BoardConfig(Section):
-    """``[hand_eye.calibration.board]``: the printed ChArUco board (:class:`calibration.board.CharucoBoardSpec`).
-
-    ``squares_x`` × ``squares_y`` squares of ``square_length_m`` with markers of ``marker_length_m`` (measure the
-    print: a wrong size scales every translation), ``dictionary`` a ``cv2.aruco.DICT_*`` name.
-    """
-
-    squares_x: int = Field(ge=2)
-    squares_y: int = Field(ge=2)
-    square_length_m: float = Field(gt=0)
-    marker_length_m: float = Field(gt=0)
-    dictionary: str = "DICT_5X5_100"
-    legacy_pattern: bool = False
-
-    @model_validator(mode="after")
-    def _check_board(self) -> BoardConfig:
-        from calibration.errors import CalibrationError
-
-        try:
-            self.spec()
-        except CalibrationError as err:
-            raise ValueError(str(err)) from err
-        return self
-
-    def spec(self) -> Any:
-        """The :class:`calibration.board.CharucoBoardSpec` of this table."""
-        from calibration.board import CharucoBoardSpec
-
-        return CharucoBoardSpec(
-            squares_x=self.squares_x,
-            squares_y=self.squares_y,
-            square_length_m=self.square_length_m,
-            marker_length_m=self.marker_length_m,
-            dictionary=self.dictionary,
-            legacy_pattern=self.legacy_pattern,
-        )
-
-
-class WorkspaceConfig(Section):
-    """``[hand_eye.calibration.workspace]``: where the tool frame origin may go while calibrating (base frame,
-    metres): within ``reach_radius_m`` of ``reach_center_base`` (e.g. the shoulder), beyond ``min_radius_m``, and
-    inside the box ``box_min_base`` .. ``box_max_base`` when given (keep its floor above the table and fixtures)."""
-
-    reach_center_base: list[float] = Field(min_length=3, max_length=3)
-    reach_radius_m: float = Field(gt=0)
-    min_radius_m: float = Field(default=0.0, ge=0)
-    box_min_base: list[float] | None = Field(default=None, min_length=3, max_length=3)
-    box_max_base: list[float] | None = Field(default=None, min_length=3, max_length=3)
-
-    @model_validator(mode="after")
-    def _check_workspace(self) -> WorkspaceConfig:
-        from calibration.errors import CalibrationError
-
-        try:
-            self.workspace()
-        except CalibrationError as err:
-            raise ValueError(str(err)) from err
-        return self
-
-    def workspace(self) -> Any:
-        """The :class:`calibration.planner.Workspace` of this table."""
-        from calibration.planner import Workspace
-
-        def xyz(v: list[float] | None) -> tuple[float, float, float] | None:
-            return None if v is None else (float(v[0]), float(v[1]), float(v[2]))
-
-        center = xyz(self.reach_center_base)
-        assert center is not None
-        return Workspace(
-            reach_center_base=center,
-            reach_radius_m=self.reach_radius_m,
-            min_radius_m=self.min_radius_m,
-            box_min_base=xyz(self.box_min_base),
-            box_max_base=xyz(self.box_max_base),
-        )
-
-
-class CalibrationConfig(Section):
-    """``[hand_eye.calibration]``: how ``weldcell calibrate hand-eye`` calibrates (see docs/calibration.md).
-
-    ``mode``: ``"eye_in_hand"`` (camera on the tool, board fixed; default) or ``"eye_to_hand"`` (camera fixed,
-    board on the tool). Nominal (CAD) poses the plan aims with, metres; a few mm and degrees off is fine:
-    eye-in-hand ``X_base_board`` (required) and ``X_tool_camera`` (default: the ``[hand_eye]`` result);
-    eye-to-hand ``X_base_camera`` and ``X_tool_board`` (both required). ``poses``: views to solve from (one more is
-    taken to verify the result); ``seed``: of the pose plan. The views sit ``standoff_m`` ± ``standoff_jitter_m``
-    from the board centre, tilted ``min_tilt_deg``..``max_tilt_deg`` from its normal and rolled up to
-    ± ``max_roll_deg``. ``speed_m_s``/``accel_m_s2``: tool motion between views (default: ``[robot]``'s);
-    ``settle_s``: wait after each move before the capture. ``min_corners``: a view with fewer board corners is
-    skipped; ``min_views``: fewer usable views stop the calibration.
-    """
-
-    mode: HandEyeModeName = "eye_in_hand"
-    board: BoardConfig
-    workspace: WorkspaceConfig
-    X_base_board: list[list[float]] | None = None
-    X_tool_camera: list[list[float]] | None = None
-    X_base_camera: list[list[float]] | None = None
-    X_tool_board: list[list[float]] | None = None
-    poses: int = Field(default=12, ge=3, le=200)
-    seed: int = 0
-    standoff_m: float = Field(default=0.40, gt=0)
-    standoff_jitter_m: float = Field(default=0.05, ge=0)
-    min_tilt_deg: float = Field(default=10.0, ge=0)
-    max_tilt_deg: float = Field(default=35.0, ge=0)
-    max_roll_deg: float = Field(default=40.0, ge=0)
-    speed_m_s: float | None = Field(default=None, gt=0)
-    accel_m_s2: float | None = Field(default=None, gt=0)
-    settle_s: float = Field(default=0.2, ge=0)
-    min_corners: int = Field(default=12, ge=4)
-    min_views: int = Field(default=6, ge=3)
-
-    @model_validator(mode="after")
-    def _check_calibration(self) -> CalibrationConfig:
-        for name in ("X_base_board", "X_tool_camera", "X_base_camera", "X_tool_board"):
-            _check_matrix(getattr(self, name), name)
-        needed = ("X_base_board",) if self.mode == "eye_in_hand" else ("X_base_camera", "X_tool_board")
-        missing = [name for name in needed if getattr(self, name) is None]
-        if missing:
-            raise ValueError(f"mode = {self.mode!r} needs the nominal {' and '.join(missing)}")
-        if self.min_views > self.poses:
-            raise ValueError(f"poses = {self.poses} is below min_views = {self.min_views}")
-        from calibration.errors import CalibrationError
-
-        try:
-            self.plan_params(self.poses)
-        except CalibrationError as err:
-            raise ValueError(str(err)) from err
-        return self
-
-    def plan_params(self, n_poses: int) -> PlanParams:
-        """The planner's :class:`calibration.planner.PlanParams` for ``n_poses`` views: the file's degrees
-        converted to radians here, the one place they are."""
-        from calibration.planner import PlanParams
-
-        return PlanParams(
-            n_poses=n_poses,
-            standoff_m=self.standoff_m,
-            standoff_jitter_m=self.standoff_jitter_m,
-            min_tilt_rad=math.radians(self.min_tilt_deg),
-            max_tilt_rad=math.radians(self.max_tilt_deg),
-            max_roll_rad=math.radians(self.max_roll_deg),
-        )
-
-
-class HandEyeConfig(Section):
-    """``[hand_eye]``: the camera pose on the tool, ``X_tool_camera`` (4x4, metres), given inline or as
-    ``path`` to a hand-eye result file as ``weldcell calibrate hand-eye`` writes it (``"format":
-    "weldcell-hand-eye/1"`` and an ``"X_tool_camera"`` key; read by :mod:`calibration.result_file`).
-    ``calibration``: how that command calibrates it (optional)."""
-
-    path: str | None = Field(default=None, min_length=1)
-    X_tool_camera: list[list[float]] | None = None
-    calibration: CalibrationConfig | None = None
-
-    @model_validator(mode="after")
-    def _check_one(self) -> HandEyeConfig:
-        if (self.path is None) == (self.X_tool_camera is None):
-            raise ValueError("give exactly one of 'path' and 'X_tool_camera'")
-        if self.X_tool_camera is not None:
-            try:
-                check_X(np.asarray(self.X_tool_camera, dtype=np.float64), name="X_tool_camera")
-            except (TransformError, ValueError) as err:
-                raise ValueError(str(err)) from err
-        return self
 
 
 class PoseConfig(Section):
@@ -464,7 +285,7 @@ class FixtureConfig(Section):
 
     @model_validator(mode="after")
     def _check_fixture(self) -> FixtureConfig:
-        _check_matrix(self.X_world_fixture, "X_world_fixture")
+        check_matrix(self.X_world_fixture, "X_world_fixture")
         return self
 
 
@@ -682,7 +503,7 @@ def load_config(path: str | os.PathLike[str]) -> CellConfig:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{file}: malformed TOML: {_toml_context(err, text)}") from err
+        raise ConfigError(f"{file}: malformed TOML: {toml_context(err, text)}") from err
     return config_from_dict(data, source=file)
 
 
@@ -698,71 +519,3 @@ def config_from_dict(data: dict[str, Any], *, source: str | os.PathLike[str] | N
     return config
 
 
-def _toml_context(err: tomllib.TOMLDecodeError, text: str) -> str:
-    """The decoder's message, the dotted key being written when it failed, and the offending line."""
-    msg = str(err)
-    found = re.search(r"at line (\d+)", msg)
-    lines = text.splitlines()
-    if found is None or not 1 <= int(found.group(1)) <= len(lines):
-        return msg
-    lineno = int(found.group(1))
-    line = lines[lineno - 1].strip()
-    table = ""
-    for previous in reversed(lines[: lineno - 1]):
-        header = re.match(r"\s*\[+\s*([^\]]+?)\s*\]+", previous)
-        if header:
-            table = header.group(1)
-            break
-    assigned = re.match(r"\s*([A-Za-z0-9_\-.\"']+)\s*=", line)
-    key = ".".join(k for k in (table, assigned.group(1) if assigned else "") if k)
-    where = f"{key} " if key else ""
-    return f"{msg}; {where}(line {lineno}: {line!r})"
-
-
-def describe_validation_error(error: Any, root: type[BaseModel]) -> str:
-    """One pydantic error as 'where: what' for a TOML file whose schema is ``root`` (cell or job)."""
-    loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in error["loc"]).replace(".[", "[")
-    kind = error["type"]
-    msg = str(error["msg"])
-    if msg.startswith("Value error, "):
-        msg = msg[len("Value error, ") :]
-    if kind == "extra_forbidden":
-        allowed = _allowed_keys(error["loc"][:-1], root)
-        hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
-        return f"{loc}: unknown key{hint}"
-    if kind == "missing":
-        return f"{loc}: required key is missing"
-    if kind in ("model_type", "dict_type") and not loc:
-        return f"the file must be a table of sections, got {type(error['input']).__name__}"
-    got = error.get("input")
-    shown = (
-        ""
-        if isinstance(got, dict) or kind.startswith("value_error") or kind == "assertion_error"
-        else f" (got {got!r})"
-    )
-    return f"{loc or 'file'}: {msg}{shown}"
-
-
-def _allowed_keys(loc: tuple[Any, ...], root: type[BaseModel]) -> list[str]:
-    model = root
-    for part in loc:
-        if isinstance(part, int):
-            continue  # an index into a list of tables
-        field = model.model_fields.get(str(part))
-        if field is None:
-            return []
-        inner = _model_of(field.annotation)
-        if inner is None:
-            return []
-        model = inner
-    return list(model.model_fields)
-
-
-def _model_of(annotation: Any) -> type[BaseModel] | None:
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation
-    for arg in getattr(annotation, "__args__", ()):
-        inner = _model_of(arg)
-        if inner is not None:
-            return inner
-    return None

@@ -40,16 +40,10 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, ValidationError, model_validator
 
-from cell.config import (
-    DetectionConfig,
-    PoseConfig,
-    Section,
-    WeldingConfig,
-    _toml_context,
-    describe_validation_error,
-)
+from cell.config import DetectionConfig, PoseConfig, WeldingConfig
 from cell.errors import ConfigError
 from cell.planning import WeldParams
+from cell.sections import Section, describe_validation_error, toml_context
 from cell.world_seams import SeamFilter
 
 PROMPTS_FROM_CAMERA = "camera"
@@ -218,7 +212,7 @@ def job_from_text(
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
-        detail = _toml_context(err, text) if quote else str(err)
+        detail = toml_context(err, text) if quote else str(err)
         raise ConfigError(f"{source}: malformed TOML: {detail}") from err
     except RecursionError as err:
         raise ConfigError(f"{source}: the TOML is nested too deeply to be a job file") from err
