@@ -266,6 +266,11 @@ def fanuc_ls_program(
                 if params.arc_off_dwell_s > 0:
                     mn.append(f"WAIT {fmt_fixed(params.arc_off_dwell_s, 2, 'arc_off_dwell_s')}(sec) ;")
                 mn.append(f"DO[{do}]=OFF ;")
+    return _ls_text(prog, comment, mn, positions)
+
+
+def _ls_text(prog: str, comment: str, mn: list[str], positions: list[str]) -> str:
+    """The LS file around the program's ``/MN`` lines ``mn`` and ``/POS`` entries ``positions``."""
     prog_comment = sanitize_comment(comment or "weldcell", max_len=FANUC_PROG_COMMENT_MAX, no_slash=True)
     out = [
         f"/PROG  {prog}",

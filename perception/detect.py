@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from perception.butt import butt_from_surfaces
 from perception.capture import Capture, PointCloud
 from perception.cloud import (
     RegionParams,
@@ -35,19 +36,18 @@ from perception.cloud import (
     surface_spacing,
     voxel_downsample,
 )
+from perception.curve_refine import refine_curve
 from perception.errors import NoSeamFound, PerceptionError
+from perception.fits import fit_plane
 from perception.organized import veil_mask
 from perception.path import TorchParams, interpolate_rows, sample_uniform, torch_poses
 from perception.seamfit import (
     FullRes,
     SeamGeometry,
     SeamParams,
-    butt_from_surfaces,
     classify_junction_local,
     fit_edge_path,
-    fit_plane,
     indices_near_polyline,
-    refine_curve,
     refine_linear,
     region_edges,
 )
@@ -449,7 +449,8 @@ def _mask_pair_candidates(
     concave fold. They catch junctions region growing missed (a face only a few voxels wide, like the
     edge of a lap joint's upper plate); those a region candidate already covers are skipped. Proposed
     on the labelled voxel centroids (cheap); the refinement then works on full-resolution points."""
-    from perception.seamfit import classify_junction, plane_intersection
+    from perception.fits import plane_intersection
+    from perception.seamfit import classify_junction
 
     out: list[_Cand] = []
     trees: dict[int, tuple[FloatArray, cKDTree]] = {}

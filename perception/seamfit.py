@@ -8,7 +8,6 @@ camera (the side a torch comes from).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -16,7 +15,17 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from perception.cloud import Neighbourhoods, kdtree
+from perception.cloud import Neighbourhoods
+from perception.fits import (
+    connected_components,
+    fit_line,
+    fit_plane,
+    fit_plane_robust,
+    line_coordinates,
+    order_along_curve,
+    orient_towards,
+    plane_intersection,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -67,84 +76,6 @@ class SeamGeometry:
 
 # --------------------------------------------------------------------------------------------------
 # Small geometric helpers
-
-
-def fit_plane(p: FloatArray) -> tuple[FloatArray, FloatArray, float]:
-    """Least-squares plane: (centroid, unit normal, RMS distance), from the 3x3 scatter matrix."""
-    c = p.mean(axis=0)
-    q = p - c
-    evals, evecs = np.linalg.eigh(q.T @ q)
-    return c, evecs[:, 0], float(np.sqrt(max(evals[0], 0.0) / max(len(p), 1)))
-
-
-def fit_plane_robust(
-    p: FloatArray, *, sigma_gate: float = 3.0, iters: int = 3
-) -> tuple[FloatArray, FloatArray, float, NDArray[np.bool_]]:
-    """Plane fit with iterative ``sigma_gate`` * RMS outlier rejection; returns the inlier mask too."""
-    keep = np.ones(len(p), bool)
-    c, n, rms = fit_plane(p)
-    for _ in range(iters):
-        d = np.abs((p - c) @ n)
-        new = d <= max(sigma_gate * rms, 1e-5)
-        if new.sum() < 3 or np.array_equal(new, keep):
-            break
-        keep = new
-        c, n, rms = fit_plane(p[keep])
-    return c, n, rms, keep
-
-
-def fit_line(p: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Least-squares 3D line through points: (centroid, unit direction)."""
-    c = p.mean(axis=0)
-    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
-    return c, vt[0]
-
-
-def orient_towards(n: FloatArray, p: FloatArray, viewpoint: FloatArray) -> FloatArray:
-    return n if float(n @ (viewpoint - p)) >= 0 else -n
-
-
-def plane_intersection(
-    c1: FloatArray, n1: FloatArray, c2: FloatArray, n2: FloatArray, near: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """Line of two planes: (the point on it closest to ``near``, unit direction)."""
-    d = np.cross(n1, n2)
-    d /= np.linalg.norm(d)
-    # minimise |x - near|^2 subject to n1.x = n1.c1, n2.x = n2.c2
-    A = np.array([[2.0, 0, 0, n1[0], n2[0]], [0, 2.0, 0, n1[1], n2[1]], [0, 0, 2.0, n1[2], n2[2]],
-                  [n1[0], n1[1], n1[2], 0, 0], [n2[0], n2[1], n2[2], 0, 0]])  # fmt: skip
-    b = np.concatenate([2 * near, [n1 @ c1, n2 @ c2]])
-    x = np.linalg.solve(A, b)
-    return x[:3], d
-
-
-def _components(points: FloatArray, radius: float) -> NDArray[np.int64]:
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    pairs = kdtree(points).query_pairs(radius, output_type="ndarray")
-    n = len(points)
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, lab = connected_components(g, directed=False)
-    return lab.astype(np.int64)
-
-
-def order_along_curve(points: FloatArray, radius: float) -> FloatArray:
-    """(N,) parameter along a thin curve-like point set: geodesic distance from one end."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import dijkstra
-
-    tree = kdtree(points)
-    pairs = tree.query_pairs(radius, output_type="ndarray")
-    n = len(points)
-    w = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
-    g = coo_matrix((w, (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
-    d0 = dijkstra(g, directed=False, indices=0)
-    d0[~np.isfinite(d0)] = -1
-    end = int(np.argmax(d0))
-    s = dijkstra(g, directed=False, indices=end)
-    s[~np.isfinite(s)] = np.nan
-    return np.asarray(s)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -223,7 +154,7 @@ def _bridged_pairs(
 
 def _split_pieces(a, b, pts, regions, min_points, link_m, nbh) -> list[EdgeSet]:
     coords = nbh.tree.data[pts]
-    lab = _components(coords, link_m)
+    lab = connected_components(coords, link_m)
     pieces = []
     for c in np.unique(lab):
         sel = pts[lab == c]
@@ -415,6 +346,8 @@ def fit_edge_path(edge_points: FloatArray, params: SeamParams, voxel_m: float) -
     return "curved", dense
 
 
+# Over 80 lines with its docstring: steps 2 and 3 below are one loop over a dozen shared variables (faces, line,
+# window, extent); split apart they would be passed back and forth, and the algorithm would be harder to follow.
 def refine_linear(
     full: FullRes,
     ra: int | tuple[int, ...],
@@ -447,19 +380,14 @@ def refine_linear(
     half = 0.5 * float(np.linalg.norm(p1 - p0))
     window = (-half - R, half + R)
     idx = _indices_near_polyline(full, _segment(center, direction, window), R)
-    if seed_labels is not None and full.labels is not None:
-        lab = full.labels[idx]
-        in_a, in_b = lab == seed_labels[0], lab == seed_labels[1]
-    else:
-        reg = full.regions[idx]
-        in_a = np.isin(reg, np.atleast_1d(ra))
-        in_b = np.isin(reg, np.atleast_1d(rb))
+    in_a, in_b = _seed_faces(full, idx, ra, rb, seed_labels)
     if in_a.sum() < 20 or in_b.sum() < 20:
         return None
     exclude = max(params.refine_exclude_m, 0.5 * R / 3)
     t_lo, t_hi = -np.inf, np.inf
     fit = None
     runs: list[tuple[float, float]] = []
+    # steps 2 and 3 are one loop over shared state (faces, line, window, extent): kept together on purpose
     for it in range(12):
         pts = full.points[idx]
         fit = _fit_plane_pair(
@@ -507,25 +435,64 @@ def refine_linear(
         if direction @ d < 0:
             direction = -direction
     ca, na, rms_a, cb, nb, rms_b = fit
-    # a fillet's faces each lie on the open side of the other's plane; on a convex edge they lie
-    # behind it. Refinement may have settled on a different junction than the one classified, so check
-    pts = full.points[idx]
+    if not _faces_on_open_sides(full.points[idx], in_a, in_b, center, direction, na, nb, exclude=exclude, band_m=R):
+        return None
+    if len(runs) == 1:
+        return _trimmed([(center, direction, runs[0], na, nb, max(rms_a, rms_b))], params) or None
+    # a hole split the seam: the pieces may be different parts whose faces are only nearly in line
+    # (two stiffeners' faces a few mm apart), and one plane pair across both would tilt each piece
+    pieces = [_refit_piece(full, idx, in_a, in_b, center, direction, run, exclude, params, viewpoint, seed_labels)
+              for run in runs]  # fmt: skip
+    return _trimmed(pieces, params) or None
+
+
+def _seed_faces(
+    full: FullRes,
+    idx: NDArray[np.int64],
+    ra: int | tuple[int, ...],
+    rb: int | tuple[int, ...],
+    seed_labels: tuple[int, int] | None,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Which of the points ``idx`` seed face a and face b: those of regions ``ra`` / ``rb``, or of the two coarse
+    surface masks ``seed_labels`` when given."""
+    if seed_labels is not None and full.labels is not None:
+        lab = full.labels[idx]
+        return lab == seed_labels[0], lab == seed_labels[1]
+    reg = full.regions[idx]
+    return np.isin(reg, np.atleast_1d(ra)), np.isin(reg, np.atleast_1d(rb))
+
+
+def _faces_on_open_sides(
+    pts: FloatArray,
+    in_a: NDArray[np.bool_],
+    in_b: NDArray[np.bool_],
+    center: FloatArray,
+    direction: FloatArray,
+    na: FloatArray,
+    nb: FloatArray,
+    *,
+    exclude: float,
+    band_m: float,
+) -> bool:
+    """A fillet's faces each lie on the open side of the other's plane; on a convex edge they lie behind it.
+    Refinement may have settled on a different junction than the one classified, so this checks it on the
+    (N, 3) points ``pts`` in the ring between ``exclude`` and ``band_m`` from the line."""
     rel = pts - center
     _, dist_line = line_coordinates(pts, center, direction)
-    ring = (dist_line > exclude) & (dist_line < R)
+    ring = (dist_line > exclude) & (dist_line < band_m)
     if (ring & in_a).sum() < 10 or (ring & in_b).sum() < 10:
-        return None
+        return False
     side_a = float(np.median(rel[ring & in_a] @ nb))
     side_b = float(np.median(rel[ring & in_b] @ na))
-    if side_a <= 0.5 * exclude or side_b <= 0.5 * exclude:
-        return None
-    if len(runs) > 1:
-        # a hole split the seam: the pieces may be different parts whose faces are only nearly in line
-        # (two stiffeners' faces a few mm apart), and one plane pair across both would tilt each piece
-        pieces = [_refit_piece(full, idx, in_a, in_b, center, direction, run, exclude, params, viewpoint, seed_labels)
-                  for run in runs]  # fmt: skip
-    else:
-        pieces = [(center, direction, runs[0], na, nb, max(rms_a, rms_b))]
+    return not (side_a <= 0.5 * exclude or side_b <= 0.5 * exclude)
+
+
+def _trimmed(
+    pieces: list[tuple[FloatArray, FloatArray, tuple[float, float], FloatArray, FloatArray, float] | None],
+    params: SeamParams,
+) -> list[tuple[FloatArray, FloatArray, FloatArray, float]]:
+    """Each piece as (end points (2, 3), normal a, normal b, RMS), its ends trimmed by ``end_trim_m``; pieces
+    shorter than ``min_length_m`` after trimming (and None pieces) dropped."""
     out: list[tuple[FloatArray, FloatArray, FloatArray, float]] = []
     for piece in pieces:
         if piece is None:
@@ -534,7 +501,7 @@ def refine_linear(
         lo, hi = lo + params.end_trim_m, hi - params.end_trim_m
         if hi - lo >= params.min_length_m:
             out.append((np.array([c_k + lo * d_k, c_k + hi * d_k]), na_k, nb_k, rms_k))
-    return out or None
+    return out
 
 
 def _refit_piece(
@@ -579,15 +546,6 @@ def _refit_piece(
         center, direction = new_center, new_dir
         lo, hi = max(runs[0][0], t_lo), min(runs[-1][1], t_hi)
     return center, direction, (lo, hi), na, nb, max(rms_a, rms_b)
-
-
-def line_coordinates(pts: FloatArray, center: FloatArray, direction: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """(N,) position along a line through ``center`` with unit ``direction``, and (N,) distance from it."""
-    rel = pts - center
-    t = rel @ direction
-    # Pythagoras instead of the perpendicular vectors: no (N, 3) temporaries (points lie within
-    # centimetres of the line here, so the difference of squares loses nothing that matters)
-    return t, np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - t * t, 0.0))
 
 
 def _segment(center: FloatArray, direction: FloatArray, window: tuple[float, float]) -> FloatArray:
@@ -701,314 +659,3 @@ def supported_runs(ta: FloatArray, tb: FloatArray, *, bin_m: float, max_hole_m: 
     return out
 
 
-def refine_curve(
-    full: FullRes,
-    ra: int | tuple[int, ...],
-    rb: int | tuple[int, ...],
-    curve: FloatArray,
-    params: SeamParams,
-    viewpoint: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
-    """Cross-section refinement of a curved seam: in thin slabs across the seam, fit the trace of each
-    surface as a 2D line and intersect them; then track the seam beyond both ends of the coarse curve
-    (extrapolate 2 mm along the tangent, fit the slab there, keep it while both faces are found near
-    the prediction). Returns dense points, normals a / b and the median fit RMS."""
-    from perception.evaluate import resample_polyline
-
-    samples = resample_polyline(curve, params.curve_step_m)
-    tang = np.gradient(samples, axis=0)
-    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-12)
-    fits: list[tuple[FloatArray, FloatArray, FloatArray, float]] = []
-    for s, T in zip(samples, tang, strict=True):
-        idx = np.asarray(full.tree.query_ball_point(s, params.refine_band_m), dtype=np.int64)
-        if idx.size < 20:
-            continue
-        reg = full.regions[idx]
-        in_a, in_b = np.isin(reg, np.atleast_1d(ra)), np.isin(reg, np.atleast_1d(rb))
-        res = _slab_corner(full, idx, s, T, in_a, in_b, params, viewpoint)
-        if res is not None:
-            fits.append(res)
-    fits = [f for f in fits if _seen_well(f, viewpoint, params)]
-    if len(fits) < 4:
-        return None
-    fits = _track_curve(full, fits, params, viewpoint, forward=True)
-    fits = _track_curve(full, fits, params, viewpoint, forward=False)
-    pts = np.array([f[0] for f in fits])
-    # light smoothing along the seam (3-point moving average, ends kept)
-    sm = pts.copy()
-    sm[1:-1] = (pts[:-2] + pts[1:-1] + pts[2:]) / 3.0
-    # trim the ends
-    seg = np.linalg.norm(np.diff(sm, axis=0), axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    keep = (cum >= params.end_trim_m) & (cum <= cum[-1] - params.end_trim_m)
-    if keep.sum() < 2 or cum[-1] < params.min_length_m:
-        return None
-    na = np.array([f[1] for f in fits])
-    nb = np.array([f[2] for f in fits])
-    return sm[keep], na[keep], nb[keep], float(np.median([f[3] for f in fits]))
-
-
-def _slab_corner(
-    full: FullRes,
-    idx: NDArray[np.int64],
-    s: FloatArray,
-    T: FloatArray,
-    in_a: NDArray[np.bool_],
-    in_b: NDArray[np.bool_],
-    params: SeamParams,
-    viewpoint: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
-    rel = full.points[idx] - s
-    slab = np.abs(rel @ T) < params.slab_half_width_m
-    res = _corner_2d(rel[slab], in_a[slab], in_b[slab], T, params, viewpoint - s)
-    if res is None:
-        return None
-    corner, n_a, n_b, rms = res
-    return s + corner, n_a, n_b, rms
-
-
-def _seen_well(
-    fit: tuple[FloatArray, FloatArray, FloatArray, float], viewpoint: FloatArray, params: SeamParams
-) -> bool:
-    """Both faces seen at less than ``max_incidence_rad``: beyond that, depth data are unreliable (and
-    the simulator's ground truth stops there too)."""
-    p, n_a, n_b, _ = fit
-    v = viewpoint - p
-    v /= max(float(np.linalg.norm(v)), 1e-12)
-    c = np.cos(params.max_incidence_rad)
-    return bool(abs(n_a @ v) >= c and abs(n_b @ v) >= c)
-
-
-def _track_curve(
-    full: FullRes,
-    fits: list[tuple[FloatArray, FloatArray, FloatArray, float]],
-    params: SeamParams,
-    viewpoint: FloatArray,
-    *,
-    forward: bool,
-    max_steps: int = 60,
-) -> list[tuple[FloatArray, FloatArray, FloatArray, float]]:
-    """Extend a curved seam past one end while the slab fit keeps finding both faces where expected."""
-    seq = list(fits) if forward else list(reversed(fits))
-    step = params.curve_step_m
-    for _ in range(max_steps):
-        p2, p1, p0 = seq[-3][0], seq[-2][0], seq[-1][0]
-        # second-order prediction keeps the curvature
-        nxt = p0 + (p0 - p1) + ((p0 - p1) - (p1 - p2))
-        T = nxt - p0
-        norm = np.linalg.norm(T)
-        if norm < 1e-9:
-            break
-        T /= norm
-        nxt = p0 + T * step
-        idx = np.asarray(full.tree.query_ball_point(nxt, params.refine_band_m), dtype=np.int64)
-        if idx.size < 20:
-            break
-        _, n_a, n_b, rms = seq[-1]
-        q = full.points[idx]
-        da = np.abs((q - p0) @ n_a)
-        db = np.abs((q - p0) @ n_b)
-        gate = params.plane_gate_sigma * max(rms, 3e-4) + 0.001
-        in_a = (da < gate) & (da < db)
-        in_b = (db < gate) & (db <= da)
-        res = _slab_corner(full, idx, nxt, T, in_a, in_b, params, viewpoint)
-        if res is None or np.linalg.norm(res[0] - nxt) > 0.0015:
-            break
-        if not _seen_well(res, viewpoint, params):
-            break
-        # both faces must still be seen in earnest on this slab, not a few stray points
-        if min(int(in_a.sum()), int(in_b.sum())) < 15:
-            break
-        seq.append(res)
-    return seq if forward else list(reversed(seq))
-
-
-def _corner_2d(
-    rel: FloatArray,
-    in_a: NDArray[np.bool_],
-    in_b: NDArray[np.bool_],
-    T: FloatArray,
-    params: SeamParams,
-    to_view: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray, float] | None:
-    """Intersect the 2D traces of two surfaces in a slab (coordinates relative to the slab centre)."""
-    if len(rel) < 12:
-        return None
-    # 2D basis of the cross-section plane
-    e1 = np.cross(T, [0.0, 0.0, 1.0])
-    if np.linalg.norm(e1) < 1e-6:
-        e1 = np.cross(T, [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(T, e1)
-    xy = np.column_stack([rel @ e1, rel @ e2])
-    corner = np.zeros(2)
-    exclude = 0.5 * params.refine_band_m / 3
-    la = lb = None
-    for _ in range(3):
-        dist = np.linalg.norm(xy - corner, axis=1)
-        sa = in_a & (dist > exclude)
-        sb = in_b & (dist > exclude)
-        if sa.sum() < 6 or sb.sum() < 6:
-            return None
-        la = _fit_line_2d(xy[sa], params.plane_gate_sigma)
-        lb = _fit_line_2d(xy[sb], params.plane_gate_sigma)
-        (ca, da, ra_), (cb, db, rb_) = la, lb
-        cross = da[0] * db[1] - da[1] * db[0]
-        if abs(cross) < np.sin(np.radians(10)):
-            return None
-        # ca + s da = cb + u db
-        s = ((cb - ca)[0] * db[1] - (cb - ca)[1] * db[0]) / cross
-        corner = ca + s * da
-        # membership by distance to the two lines
-        na2 = np.array([-da[1], da[0]])
-        nb2 = np.array([-db[1], db[0]])
-        dA = np.abs((xy - ca) @ na2)
-        dB = np.abs((xy - cb) @ nb2)
-        gA = params.plane_gate_sigma * max(ra_, 2e-4)
-        gB = params.plane_gate_sigma * max(rb_, 2e-4)
-        in_a = (dA < gA) & (dA < dB)
-        in_b = (dB < gB) & (dB <= dA)
-        exclude = params.refine_exclude_m
-    assert la is not None and lb is not None
-    (ca, da, ra_), (cb, db, rb_) = la, lb
-    n_a3 = np.array([-da[1], da[0]]) @ np.vstack([e1, e2])
-    n_b3 = np.array([-db[1], db[0]]) @ np.vstack([e1, e2])
-    p3 = corner @ np.vstack([e1, e2])
-    n_a3 = orient_towards(n_a3, p3, to_view)
-    n_b3 = orient_towards(n_b3, p3, to_view)
-    return p3, n_a3, n_b3, max(ra_, rb_)
-
-
-def _fit_line_2d(p: FloatArray, gate: float) -> tuple[FloatArray, FloatArray, float]:
-    keep = np.ones(len(p), bool)
-    for _ in range(3):
-        c = p[keep].mean(axis=0)
-        _, s, vt = np.linalg.svd(p[keep] - c, full_matrices=False)
-        d = vt[0]
-        n = np.array([-d[1], d[0]])
-        rms = float(s[1] / np.sqrt(keep.sum()))
-        new = np.abs((p - c) @ n) <= max(gate * rms, 1e-5)
-        if new.sum() < 4 or np.array_equal(new, keep):
-            break
-        keep = new
-    return c, d, rms
-
-
-def butt_from_surfaces(
-    pa: FloatArray,
-    pb: FloatArray,
-    scanlines: list[FloatArray] | Callable[[], list[FloatArray]],
-    params: SeamParams,
-    viewpoint: FloatArray,
-) -> tuple[FloatArray, FloatArray, float, float] | None:
-    """A butt joint between two surfaces: ``pa``, ``pb`` are the points of the two masks near where they
-    meet; ``scanlines`` are the valid points of each image row (or column) crossing the joint, in
-    order, or a callable giving them (built only once the planes say it may be a butt joint; masks are
-    imprecise right at a gap, so the edges are traced on every point). Both surfaces must lie on one
-    plane, and a real gap must separate them.
-
-    On each scanline the gap is the widest step between consecutive top-surface samples near the joint
-    (one scanline, one last sample per plate: no maximum over noisy rows, which would be biased).
-    A plate's edge is its side wall where the camera sees that wall inside the gap, otherwise its
-    last sample plus half the sample spacing (the mean shortfall of the last pixel).
-    The seam is the mid-line of the two edge lines. Returns (end points (2, 3), plane normal, RMS,
-    gap width), or None when it is not a butt joint.
-    """
-    if len(pa) < 30 or len(pb) < 30:
-        return None
-    # the plane tests need a few thousand points, not a mask's tens of thousands (evenly thinned)
-    ca, na, rms_a, _ = fit_plane_robust(pa[:: max(1, len(pa) // 4000)], sigma_gate=params.plane_gate_sigma)
-    cb, nb, rms_b, _ = fit_plane_robust(pb[:: max(1, len(pb) // 4000)], sigma_gate=params.plane_gate_sigma)
-    if max(rms_a, rms_b) > params.butt_max_rms_m:
-        return None  # not plates: curved or mixed surfaces
-    if abs(na @ nb) < np.cos(params.max_coplanar_rad):
-        return None
-    tol = 0.002 + 3 * max(rms_a, rms_b)
-    if abs((cb - ca) @ na) > tol or abs((ca - cb) @ nb) > tol:
-        return None
-    c, n, rms, keep = fit_plane_robust(np.vstack([pa, pb]), sigma_gate=params.plane_gate_sigma)
-    if rms > 1.5 * max(rms_a, rms_b, 2e-4):
-        return None
-    n = orient_towards(n, c, viewpoint)
-    qa, qb = pa[keep[: len(pa)]], pb[keep[len(pa) :]]
-    da, _ = kdtree(qb).query(qa, distance_upper_bound=0.006)
-    db, _ = kdtree(qa).query(qb, distance_upper_bound=0.006)
-    border = np.vstack([qa[np.isfinite(da)], qb[np.isfinite(db)]])
-    if len(border) < 20:
-        return None
-    mid, d = fit_line(border - np.outer((border - c) @ n, n))
-    d -= (d @ n) * n
-    d /= np.linalg.norm(d)
-    across = np.cross(n, d)
-    if (qb.mean(axis=0) - qa.mean(axis=0)) @ across < 0:
-        across = -across
-    sigma = max(rms, 1e-4)
-    if callable(scanlines):
-        scanlines = scanlines()
-    rows = []
-    for line_pts in scanlines:
-        # points stay in pixel order: the last pixel on each plate is chosen by where it is in the
-        # image, not by its (noisy) coordinate, so it carries noise but no selection bias
-        rel = line_pts - mid
-        x, h = rel @ across, (line_pts - c) @ n
-        near = np.abs(x) < 0.006
-        if near.sum() < 6:
-            continue
-        x, h, tt = x[near], h[near], rel[near] @ d
-        top = np.flatnonzero(np.abs(h) < 2.5 * sigma)
-        if len(top) < 6:
-            continue
-        xs = x[top]
-        if xs[-1] < xs[0]:  # scanline runs from b to a: walk it from a to b
-            top, xs = top[::-1], xs[::-1]
-        steps = np.diff(xs)
-        k = int(np.argmax(steps))
-        spacing = float(np.median(np.abs(steps)))
-        if steps[k] < 2.5 * max(spacing, 1e-5) or k < 1 or k + 2 >= len(xs):
-            continue  # no gap on this scanline
-        ia, ib = top[k], top[k + 1]
-        xa_last, xb_first = float(x[ia]), float(x[ib])
-        lo_i, hi_i = min(ia, ib), max(ia, ib)
-        between = np.arange(lo_i + 1, hi_i)
-        walls = between[h[between] < -3.0 * sigma]
-        wall_b = x[walls][np.abs(x[walls] - xb_first) < 0.0005]
-        wall_a = x[walls][np.abs(x[walls] - xa_last) < 0.0005]
-        # signed steps: noise makes |step| too large on average, the signed median stays unbiased
-        sp_a = float(np.median(np.diff(xs[: k + 1]))) if k >= 1 else spacing
-        sp_b = float(np.median(np.diff(xs[k + 1 :]))) if k + 2 < len(xs) else spacing
-        # the last pixel on a plate falls short of its edge by half the local spacing on average
-        edge_a = float(np.median(wall_a)) if len(wall_a) >= 2 else xa_last + 0.5 * sp_a
-        edge_b = float(np.median(wall_b)) if len(wall_b) >= 2 else xb_first - 0.5 * sp_b
-        rows.append((float(np.mean(tt)), edge_a, edge_b))
-    if len(rows) < 5:
-        return None
-    crossing = sum(1 for line_pts in scanlines if len(line_pts) >= 6)
-    if len(rows) < params.butt_min_gap_share * max(crossing, 1):
-        return None  # a real gap shows on most scanlines across the joint; noise shows on a few
-    arr = np.array(rows)
-    A = np.column_stack([np.ones(len(arr)), arr[:, 0]])
-    coefs = []
-    for col in (1, 2):
-        # robust line: least squares, then reject beyond 3 MAD-sigmas and refit, twice
-        ok = np.ones(len(arr), bool)
-        coef, *_ = np.linalg.lstsq(A, arr[:, col], rcond=None)
-        for _ in range(2):
-            resid = arr[:, col] - A @ coef
-            mad_sigma = 1.4826 * float(np.median(np.abs(resid[ok] - np.median(resid[ok]))))
-            ok = np.abs(resid) < 3 * max(mad_sigma, 1e-5)
-            coef, *_ = np.linalg.lstsq(A[ok], arr[ok, col], rcond=None)
-        coefs.append(coef)
-    lo = float(arr[:, 0].min()) + params.end_trim_m
-    hi = float(arr[:, 0].max()) - params.end_trim_m
-    if hi - lo < params.min_length_m:
-        return None
-    tt = np.array([lo, hi])
-    xa = coefs[0][0] + coefs[0][1] * tt
-    xb = coefs[1][0] + coefs[1][1] * tt
-    gap = float(np.mean(xb - xa))
-    if not params.min_gap_m <= gap <= params.max_gap_m:
-        return None
-    base = mid + np.outer(tt, d)
-    base = base - np.outer((base - c) @ n, n)
-    ends = base + np.outer(0.5 * (xa + xb), across)
-    return ends, n, rms, gap

@@ -1,0 +1,97 @@
+"""Geometric fits the seam stage is built from: planes (plain and robust), lines, the intersection line of two
+planes, coordinates along a line, and the order of points along a curve. Pure functions; metres, any frame."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from perception.cloud import kdtree
+
+FloatArray = NDArray[np.float64]
+
+def fit_plane(p: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+    """Least-squares plane: (centroid, unit normal, RMS distance), from the 3x3 scatter matrix."""
+    c = p.mean(axis=0)
+    q = p - c
+    evals, evecs = np.linalg.eigh(q.T @ q)
+    return c, evecs[:, 0], float(np.sqrt(max(evals[0], 0.0) / max(len(p), 1)))
+
+
+def fit_plane_robust(
+    p: FloatArray, *, sigma_gate: float = 3.0, iters: int = 3
+) -> tuple[FloatArray, FloatArray, float, NDArray[np.bool_]]:
+    """Plane fit with iterative ``sigma_gate`` * RMS outlier rejection; returns the inlier mask too."""
+    keep = np.ones(len(p), bool)
+    c, n, rms = fit_plane(p)
+    for _ in range(iters):
+        d = np.abs((p - c) @ n)
+        new = d <= max(sigma_gate * rms, 1e-5)
+        if new.sum() < 3 or np.array_equal(new, keep):
+            break
+        keep = new
+        c, n, rms = fit_plane(p[keep])
+    return c, n, rms, keep
+
+
+def fit_line(p: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Least-squares 3D line through points: (centroid, unit direction)."""
+    c = p.mean(axis=0)
+    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+    return c, vt[0]
+
+
+def orient_towards(n: FloatArray, p: FloatArray, viewpoint: FloatArray) -> FloatArray:
+    return n if float(n @ (viewpoint - p)) >= 0 else -n
+
+
+def plane_intersection(
+    c1: FloatArray, n1: FloatArray, c2: FloatArray, n2: FloatArray, near: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Line of two planes: (the point on it closest to ``near``, unit direction)."""
+    d = np.cross(n1, n2)
+    d /= np.linalg.norm(d)
+    # minimise |x - near|^2 subject to n1.x = n1.c1, n2.x = n2.c2
+    A = np.array([[2.0, 0, 0, n1[0], n2[0]], [0, 2.0, 0, n1[1], n2[1]], [0, 0, 2.0, n1[2], n2[2]],
+                  [n1[0], n1[1], n1[2], 0, 0], [n2[0], n2[1], n2[2], 0, 0]])  # fmt: skip
+    b = np.concatenate([2 * near, [n1 @ c1, n2 @ c2]])
+    x = np.linalg.solve(A, b)
+    return x[:3], d
+
+
+def connected_components(points: FloatArray, radius: float) -> NDArray[np.int64]:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    pairs = kdtree(points).query_pairs(radius, output_type="ndarray")
+    n = len(points)
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, lab = connected_components(g, directed=False)
+    return lab.astype(np.int64)
+
+
+def order_along_curve(points: FloatArray, radius: float) -> FloatArray:
+    """(N,) parameter along a thin curve-like point set: geodesic distance from one end."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    tree = kdtree(points)
+    pairs = tree.query_pairs(radius, output_type="ndarray")
+    n = len(points)
+    w = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
+    g = coo_matrix((w, (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+    d0 = dijkstra(g, directed=False, indices=0)
+    d0[~np.isfinite(d0)] = -1
+    end = int(np.argmax(d0))
+    s = dijkstra(g, directed=False, indices=end)
+    s[~np.isfinite(s)] = np.nan
+    return np.asarray(s)
+
+
+def line_coordinates(pts: FloatArray, center: FloatArray, direction: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """(N,) position along a line through ``center`` with unit ``direction``, and (N,) distance from it."""
+    rel = pts - center
+    t = rel @ direction
+    # Pythagoras instead of the perpendicular vectors: no (N, 3) temporaries (points lie within
+    # centimetres of the line here, so the difference of squares loses nothing that matters)
+    return t, np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - t * t, 0.0))
