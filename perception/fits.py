@@ -60,13 +60,14 @@ def plane_intersection(
 
 
 def connected_components(points: FloatArray, radius: float) -> NDArray[np.int64]:
+    """(N,) component label of each (N, 3) point, points closer than ``radius`` joined."""
     from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    from scipy.sparse.csgraph import connected_components as graph_components
 
     pairs = kdtree(points).query_pairs(radius, output_type="ndarray")
     n = len(points)
     g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, lab = connected_components(g, directed=False)
+    _, lab = graph_components(g, directed=False)
     return lab.astype(np.int64)
 
 

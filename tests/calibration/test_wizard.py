@@ -36,7 +36,7 @@ from calibration.handeye import HandEyeMode, HandEyeResult
 from calibration.planner import PlanParams
 from calibration.result_file import PREVIOUS_SUFFIX, RESULT_FORMAT
 from calibration.simulate import RenderParams, perturb_pose, render_view
-from calibration.verdict import Verdict, VerdictThresholds, Verification, assess
+from calibration.verdict import Verdict, VerdictThresholds, Verification
 from calibration.views import CalibrationPlan, ViewRecord, WizardParams, make_plan, visible_corner_count
 from calibration.wizard import DeviceReport, HandEyeWizard, LoggingUI, WizardCancelled
 from cell import config as config_module
@@ -585,37 +585,3 @@ def test_eye_to_hand_recovers_the_fixed_camera(cell: Any) -> None:
     assert outcome.assessment.verdict is Verdict.PASS and outcome.verification.rms_px < 0.5
 
 
-# ---------------------------------------------------------------------------------------------- verdict, file
-def _result(px: float, mm: float, deg: float, n: int = 8) -> HandEyeResult:
-    return HandEyeResult(
-        mode=HandEyeMode.EYE_IN_HAND,
-        method="refined",
-        view_residuals_px=np.full(n, px),
-        rms_px=px,
-        view_residuals_mm=np.full(n, mm),
-        view_residuals_deg=np.full(n, deg),
-        X_tool_camera=np.eye(4),
-        X_base_board=np.eye(4),
-    )
-
-
-def _verification(px: float) -> Verification:
-    return Verification(np.eye(4), 40, px, 2 * px, 0.1, 0.01)
-
-
-def test_verdict_thresholds() -> None:
-    t = VerdictThresholds()
-    assert assess(_result(0.2, 0.3, 0.05), _verification(0.3), t).verdict is Verdict.PASS
-    marginal = assess(_result(1.2, 0.3, 0.05), _verification(0.3), t)
-    assert marginal.verdict is Verdict.MARGINAL
-    assert marginal.reasons == ("RMS reprojection 1.2 px > 1 px (pass limit)",)
-    failed = assess(_result(0.2, 0.3, 0.05), _verification(3.5), t)
-    assert failed.verdict is Verdict.FAIL and failed.reasons == ("held-out view 3.5 px > 3 px (fail)",)
-    both = assess(_result(0.2, 1.5, 1.2), _verification(0.3), t)
-    assert both.verdict is Verdict.FAIL
-    assert both.reasons == (
-        "RMS board position 1.5 mm > 1 mm (pass limit)",
-        "RMS board orientation 1.2 deg > 1 deg (fail)",
-    )
-    with pytest.raises(CalibrationError, match="pass_rms_px <= fail_rms_px"):
-        VerdictThresholds(pass_rms_px=3.0, fail_rms_px=2.0)

@@ -1,0 +1,91 @@
+"""perception.fits: planes, lines and their intersection, coordinates along a line, order along a curve."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from perception.fits import (
+    connected_components,
+    fit_line,
+    fit_plane,
+    fit_plane_robust,
+    line_coordinates,
+    order_along_curve,
+    orient_towards,
+    plane_intersection,
+)
+
+
+def _grid_on_plane(c: np.ndarray, n: np.ndarray, size: int = 11) -> np.ndarray:
+    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    a, b = np.meshgrid(np.linspace(-0.05, 0.05, size), np.linspace(-0.05, 0.05, size))
+    return c + a.reshape(-1, 1) * u + b.reshape(-1, 1) * v
+
+
+def test_fit_plane_recovers_an_exact_plane_and_its_rms() -> None:
+    n = np.array([1.0, 2.0, 2.0]) / 3.0
+    c = np.array([0.1, -0.2, 0.5])
+    pts = _grid_on_plane(c, n)
+    centre, normal, rms = fit_plane(pts)
+    np.testing.assert_allclose(centre, c, atol=1e-15)
+    assert abs(normal @ n) == pytest.approx(1.0, abs=1e-14) and rms < 1e-15
+    # half the points 1 mm above, half 1 mm below: RMS exactly 1 mm
+    offset = np.where(np.arange(len(pts)) % 2 == 0, 0.001, -0.001)[:, None] * n
+    assert fit_plane(pts + offset)[2] == pytest.approx(0.001 * math.sqrt(1 - 1 / len(pts) ** 2), rel=1e-6)
+
+
+def test_fit_plane_robust_drops_the_outliers() -> None:
+    n = np.array([0.0, 0.0, 1.0])
+    pts = _grid_on_plane(np.zeros(3), n)
+    noisy = pts + np.where(np.arange(len(pts)) % 2 == 0, 1e-4, -1e-4)[:, None] * n
+    outliers = np.array([[0.0, 0.0, 0.02], [0.01, 0.01, -0.03]])
+    _, normal, rms, keep = fit_plane_robust(np.vstack([noisy, outliers]))
+    assert keep.sum() == len(pts) and not keep[-2:].any()
+    assert abs(normal[2]) == pytest.approx(1.0, abs=1e-12) and rms == pytest.approx(1e-4, rel=1e-3)
+
+
+def test_fit_line_and_line_coordinates() -> None:
+    d = np.array([3.0, 4.0, 0.0]) / 5.0
+    pts = np.array([0.1, 0.2, 0.3]) + np.outer(np.linspace(-0.5, 1.0, 7), d)
+    c, direction = fit_line(pts)
+    np.testing.assert_allclose(c, pts.mean(axis=0), atol=1e-15)
+    assert abs(direction @ d) == pytest.approx(1.0, abs=1e-14)
+    t, dist = line_coordinates(np.array([[0.0, 0.0, 0.0], [3.0, 4.0, 2.0]]), np.zeros(3), d)
+    np.testing.assert_allclose(t, [0.0, 5.0], atol=1e-15)
+    np.testing.assert_allclose(dist, [0.0, 2.0], atol=1e-7)
+
+
+def test_plane_intersection_is_the_point_of_the_line_nearest_to_the_hint() -> None:
+    # floor z = 0 and wall y = 0.2 meet along x at (., 0.2, 0)
+    point, d = plane_intersection(
+        np.zeros(3), np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.2, 0.0]), np.array([0.0, 1.0, 0.0]),
+        np.array([0.3, 1.0, 1.0]),
+    )  # fmt: skip
+    np.testing.assert_allclose(point, [0.3, 0.2, 0.0], atol=1e-15)
+    np.testing.assert_allclose(np.abs(d), [1.0, 0.0, 0.0], atol=1e-15)
+
+
+def test_orient_towards_turns_a_normal_to_the_viewpoint() -> None:
+    n = np.array([0.0, 0.0, 1.0])
+    np.testing.assert_array_equal(orient_towards(n, np.zeros(3), np.array([0.0, 0.0, -1.0])), -n)
+    np.testing.assert_array_equal(orient_towards(n, np.zeros(3), np.array([0.0, 0.0, 2.0])), n)
+
+
+def test_components_and_the_order_along_a_curve() -> None:
+    arc = np.array([[math.cos(a), math.sin(a), 0.0] for a in np.linspace(0.0, math.pi / 2, 31)]) * 0.1
+    far = arc + np.array([1.0, 0.0, 0.0])
+    lab = connected_components(np.vstack([arc, far]), radius=0.01)
+    assert len(set(lab[:31])) == 1 and len(set(lab[31:])) == 1 and lab[0] != lab[31]
+    shuffled = np.random.default_rng(0).permutation(31)
+    s = order_along_curve(arc[shuffled], radius=0.01)
+    chord = 2 * 0.1 * math.sin(math.pi / 4 / 30)  # neighbours along the arc
+    expected = np.arange(31) * chord
+    got = s[np.argsort(shuffled)]
+    if got[0] > got[-1]:  # either end may be the start
+        got = got.max() - got
+    np.testing.assert_allclose(got, expected, atol=1e-12)
