@@ -1,0 +1,47 @@
+"""perception.evaluate: distances to polylines and the scoring of detected seams, against exact geometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from perception.capture import GroundTruthSeam
+from perception.evaluate import evaluate_seams, point_to_polyline_distance, resample_polyline
+
+
+def test_distance_to_a_polyline_is_to_its_nearest_segment_clamped_at_the_ends() -> None:
+    line = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]])
+    pts = np.array([[0.5, 0.3, 0.0], [-0.3, 0.4, 0.0], [1.2, 0.5, 0.0], [1.0, 1.0, 2.0], [0.5, 0.0, 0.0]])
+    np.testing.assert_allclose(point_to_polyline_distance(pts, line), [0.3, 0.5, 0.2, 2.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(point_to_polyline_distance(pts[:2], line[:1]), [math.hypot(0.5, 0.3), 0.5])
+
+
+def test_resample_puts_points_evenly_along_the_polyline() -> None:
+    line = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [0.3, 0.1, 0.0]])
+    out = resample_polyline(line, 0.1)
+    np.testing.assert_allclose(out, [[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [0.3, 0, 0], [0.3, 0.1, 0]], atol=1e-15)
+    np.testing.assert_array_equal(resample_polyline(np.zeros((2, 3)), 0.1), np.zeros((1, 3)))
+
+
+def test_scores_count_found_false_and_covered_seams_with_their_errors() -> None:
+    truth = (
+        GroundTruthSeam("linear", np.array([[0.0, 0.0, 0.5], [0.1, 0.0, 0.5]])),
+        GroundTruthSeam("linear", np.array([[0.0, 0.1, 0.5], [0.1, 0.1, 0.5]])),
+    )
+    x = np.linspace(0.0, 0.05, 51)
+    half_of_first = np.column_stack([x, np.full_like(x, 0.001), np.full_like(x, 0.5)])  # 1 mm off, half its length
+    far_away = np.array([[0.5, 0.5, 0.5], [0.6, 0.5, 0.5]])
+    report = evaluate_seams([half_of_first, far_away], truth)
+    assert (report.n_truth, report.n_detected, report.n_found, report.false_seams) == (2, 2, 1, (1,))
+    first, second = report.seams
+    assert first.found and first.detected_ids == (0,) and first.n_points == 51
+    assert first.rmse_m == pytest.approx(0.001, abs=1e-12) and first.max_m == pytest.approx(0.001, abs=1e-12)
+    # covered within 3 mm: the first 53 of the 101 one-millimetre samples (0 .. 52 mm)
+    assert first.coverage == pytest.approx(53 / 101, abs=1e-12)
+    assert not second.found and math.isnan(second.rmse_m) and second.coverage == 0.0
+    assert report.coverage == pytest.approx(0.5 * 53 / 101, abs=1e-12)  # length-weighted, equal lengths
+    doc = report.to_json()
+    assert (doc["found"], doc["false_seams"], doc["rmse_mm"], doc["seams"][1]["rmse_mm"]) == (1, 1, 1.0, None)
+    assert not report.all_found
