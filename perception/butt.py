@@ -14,6 +14,7 @@ from perception.seamfit import SeamParams
 
 FloatArray = NDArray[np.float64]
 
+
 def butt_from_surfaces(
     pa: FloatArray,
     pb: FloatArray,

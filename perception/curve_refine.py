@@ -14,6 +14,7 @@ from perception.seamfit import FullRes, SeamParams
 
 FloatArray = NDArray[np.float64]
 
+
 def refine_curve(
     full: FullRes,
     ra: int | tuple[int, ...],

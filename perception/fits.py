@@ -10,6 +10,7 @@ from perception.cloud import kdtree
 
 FloatArray = NDArray[np.float64]
 
+
 def fit_plane(p: FloatArray) -> tuple[FloatArray, FloatArray, float]:
     """Least-squares plane: (centroid, unit normal, RMS distance), from the 3x3 scatter matrix."""
     c = p.mean(axis=0)
