@@ -29,13 +29,20 @@ class FoldParams:
     lap_height_m: float = 0.014  # a standing face this narrow across the seam is a lap edge
 
 
-def _line_of(a: Surface, b: Surface, near: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Point (nearest ``near``) and unit direction of the intersection of two planes."""
+def plane_line(a: Surface, b: Surface, near: FloatArray,
+               along: FloatArray | None = None) -> tuple[FloatArray, FloatArray] | None:  # fmt: skip
+    """Point (nearest ``near``) and unit direction of the intersection of two planes, the direction turned
+    to agree with ``along`` when given; None for parallel planes."""
     u = np.cross(a.normal, b.normal)
-    u /= np.linalg.norm(u)
+    norm = float(np.linalg.norm(u))
+    if norm < 1e-6:
+        return None
+    u /= norm
+    if along is not None and float(u @ along) < 0:
+        u = -u
     A = np.vstack([a.normal, b.normal, u])
     rhs = np.array([-a.offset, -b.offset, float(u @ near)])
-    return np.linalg.solve(A, rhs), u
+    return np.asarray(np.linalg.solve(A, rhs), dtype=np.float64), u
 
 
 def contact_points(p: FloatArray, labels: NDArray[np.int32], pair: Pair) -> tuple[FloatArray, FloatArray]:
@@ -96,7 +103,10 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
     if abs(float(A.normal @ B.normal)) > np.cos(fp.min_turn_rad):
         return []
     near = np.vstack([pa, pb]).mean(axis=0)
-    p0, u = _line_of(A, B, near)
+    line = plane_line(A, B, near)
+    if line is None:
+        return []
+    p0, u = line
     z = float(near[2])
     sig = float(noise.sigma_m(z))
     reach = fp.near_m + 3.0 * sig + 3.0 * float(noise.spacing_m(z))

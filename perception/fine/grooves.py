@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
 from perception.fine.adjacency import adjacent_pairs
-from perception.fine.folds import contact_points
+from perception.fine.folds import contact_points, plane_line
 from perception.fine.refine import near_points
 from perception.fine.runs import covered_runs
 from perception.fine.surfaces import _fit_plane
@@ -175,14 +175,10 @@ def _surface(label: int, q: FloatArray) -> Surface:
 def _root_line(a: Surface, b: Surface, qa: FloatArray, qb: FloatArray, u: FloatArray, mid: FloatArray,
                gp: GrooveParams) -> SeamCurve | None:  # fmt: skip
     """The bevels' intersection over the stretch where both have points (bins along the groove)."""
-    d = np.cross(a.normal, b.normal)
-    if np.linalg.norm(d) < 1e-6:
+    line = plane_line(a, b, mid, along=u)
+    if line is None:
         return None
-    d /= np.linalg.norm(d)
-    if d @ u < 0:
-        d = -d
-    M = np.vstack([a.normal, b.normal, d])
-    p0 = np.asarray(np.linalg.solve(M, [-a.offset, -b.offset, float(d @ mid)]), dtype=np.float64)
+    p0, d = line
     ta, tb = (qa - p0) @ d, (qb - p0) @ d
     lo, hi = max(float(ta.min()), float(tb.min())), min(float(ta.max()), float(tb.max()))
     if hi - lo < gp.min_length_m:

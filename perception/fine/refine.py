@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
-from perception.fine.folds import ring_points
+from perception.fine.folds import plane_line, ring_points
 from perception.fine.runs import covered_runs
 from perception.fine.surfaces import _fit_plane, axis_basis, circle_across
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
@@ -124,16 +124,10 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
         nb = nb if nb @ B.normal > 0 else -nb
         a = replace(a, normal=na, offset=-float(na @ q[on_a].mean(axis=0)))
         b = replace(b, normal=nb, offset=-float(nb @ q[on_b].mean(axis=0)))
-        uu = np.cross(a.normal, b.normal)
-        if np.linalg.norm(uu) < 1e-6:
+        line = plane_line(a, b, 0.5 * (p0 + p1), along=u)
+        if line is None:
             return s
-        uu /= np.linalg.norm(uu)
-        if uu @ u < 0:
-            uu = -uu
-        M = np.vstack([a.normal, b.normal, uu])
-        mid = 0.5 * (p0 + p1)
-        line0 = np.asarray(np.linalg.solve(M, [-a.offset, -b.offset, float(uu @ mid)]), dtype=np.float64)
-        u = uu
+        line0, u = line
         va = _side(a, b, line0, u, line0 + va)
         vb = _side(b, a, line0, u, line0 + vb)
     # open root: neither face reaches the intersection; the seam is the middle of their facing edges (each
