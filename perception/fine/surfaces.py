@@ -358,6 +358,8 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
         inl = cres <= tol
         if inl.mean() >= min_share:
             break
+        if inl.mean() < 0.5 * min_share:
+            return None  # not nearly a cylinder: refitting would not make it one
         sel = cres <= max(float(np.percentile(cres, 60)), float(np.median(tol)))
         if sel.sum() < max(min_points, 20):
             return None
