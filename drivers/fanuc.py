@@ -1,10 +1,8 @@
 """A FANUC arm through the Remote Motion Interface: ``drivers.protocols.Robot`` over ``drivers.fanuc_rmi``.
 
-Threading: the asyncio :class:`~drivers.fanuc_rmi.RMIClient` lives on an event loop in one background thread
-(``fanuc-rmi-<name>``) between :meth:`FanucRobot.connect` and :meth:`FanucRobot.disconnect`; every public
-method submits a coroutine to it and blocks, with a timeout, for the result. Methods may be called from
-several threads (``stop()`` from a watchdog while ``move_linear`` blocks in another). ``on_progress`` callbacks
-run in the thread that called ``stream_path``.
+Threading: every public method blocks, with a timeout, for its answer from the I/O process (below). Methods may
+be called from several threads (``stop()`` from a watchdog while ``move_linear`` blocks in another).
+``on_progress`` callbacks run in the thread that called ``stream_path``.
 
 Units: SI at this API (metres, m/s, ``X_base_tool`` 4x4); millimetres and degrees exist only on the wire and
 are converted here, once, with :func:`perception.transforms.xyzwpr_mm_deg_from_X` and its inverse.
@@ -16,105 +14,202 @@ cleared and :meth:`FanucRobot.reset_faults` (FRC_Reset) is called, which the cel
 operator's acknowledgement. An unsolicited ``FRC_SystemFault`` raises :class:`SystemFault` and latches the
 same way.
 
-Host heartbeat (``heartbeat_register``, docs/controller-watchdogs.md): while connected, a task on the I/O thread
-writes ``R[heartbeat_register]`` every ``heartbeat_period_s``: a changing count (1..30000) while a digital output
-this driver switched on is on or a motion is in flight, 0 (the watchdog disarmed) when there is nothing to make
-safe (a host busy with detection holds the GIL for seconds; that must not trip the controller). The integrator's
-``WC_HBEAT`` program on the controller switches the arc output off and stops the motion (user alarm, STOP.G)
-when that register stands still for its timeout: a dropped link, a hung or killed host.
+Host heartbeat (``heartbeat_register``, docs/controller-watchdogs.md): while connected, the I/O process writes
+``R[heartbeat_register]`` every ``heartbeat_period_s``: a changing count (1..30000) while a digital output this
+driver switched on is on or a motion is in flight, 0 (the watchdog disarmed) when there is nothing to make safe.
+The integrator's ``WC_HBEAT`` program on the controller switches the arc output off and stops the motion (user
+alarm, STOP.G) when that register stands still for its timeout: a dropped link, a hung or killed host.
+
+Process: the RMI session, the heartbeat and every request live in a child process (:mod:`drivers.fanuc_worker`,
+a fresh interpreter started at the first :meth:`FanucRobot.connect`), so that a host busy with
+detection (holding the GIL for longer than the watchdog's timeout) cannot silence the heartbeat while a motion is
+in flight. This module validates and converts, sends each request over a pipe and waits for its answer with a
+deadline; a thread (``fanuc-rmi-<name>``) reads the answers. The child exits when its pipe ends: a killed host
+takes its heartbeat with it.
 """
 
 from __future__ import annotations
 
-import asyncio
-import concurrent.futures
 import contextlib
+import itertools
 import logging
+import os
 import queue
+import socket
+import subprocess
+import sys
 import threading
 import time
-from collections.abc import Callable, Coroutine, Sequence
-from typing import Any, TypeVar
+from collections.abc import Callable, Sequence
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from drivers.errors import (
-    ConnectionLost,
-    DeviceFault,
-    DeviceTimeout,
-    DriverError,
-    EmergencyStop,
-    MotionRejected,
-    MotionTimeout,
-    ProtectiveStop,
-    RMIError,
-    SystemFault,
-)
-from drivers.fanuc_rmi import (
-    RMI_CONNECT_PORT,
-    RMIClient,
-    RMIStatus,
-    instructions_for_path,
-)
+from drivers import errors
+from drivers.errors import ConnectionLost, DeviceTimeout, DriverError, MotionRejected, MotionTimeout
+from drivers.fanuc_rmi import RMI_CONNECT_PORT, RMIMotionRejected, RMIStatus
+from drivers.fanuc_worker import MOTION_STATUS_TIMEOUT_S, MOVING_SPEED_MM_S, Settings
 from drivers.protocols import FloatArray, RobotMode, RobotState
 from perception.transforms import TransformError, X_from_xyzwpr_mm_deg, check_X, xyzwpr_mm_deg_from_X
 
 logger = logging.getLogger(__name__)
 
-T = TypeVar("T")
+__all__ = ["CNT100_BLEND_M", "MOTION_STATUS_TIMEOUT_S", "MOVING_SPEED_MM_S", "FanucRobot"]
 
 CNT100_BLEND_M = 0.010
 """The blend radius mapped to CNT100. FANUC's CNT value is a corner-rounding percentage, not a distance; the
 mapping ``CNT = 100 * blend_m / CNT100_BLEND_M`` (clamped to 1..100) is weldcell's convention."""
 
-MOTION_STATUS_TIMEOUT_S = 0.4
-"""A status request during a motion must be answered within this long (see FanucRobot._motion_status)."""
+_PACKAGE_ROOT = str(Path(__file__).resolve().parents[1])
+_WORKER_CODE = "import sys; from drivers.fanuc_worker import main; main(int(sys.argv[1]))"
 
-MOVING_SPEED_MM_S = 0.5
-"""TCP speeds above this (``FRC_ReadTCPSpeed``) count as moving."""
+WORKER_START_TIMEOUT_S = 30.0
+"""How long a new I/O process may take to start (a spawned interpreter importing the driver, on a loaded host)."""
+
+_ERROR_TYPES: dict[str, type[BaseException]] = {
+    **{name: obj for name, obj in vars(errors).items() if isinstance(obj, type) and issubclass(obj, DriverError)},
+    "RMIMotionRejected": RMIMotionRejected,
+    "TimeoutError": TimeoutError,
+    "ValueError": ValueError,
+}
 
 
-class _LoopThread:
-    """An asyncio event loop in a daemon thread; :meth:`run` submits a coroutine and blocks with a timeout."""
+def _error_from(what: str, kind: str, message: str, code: int | str | None) -> BaseException:
+    """The exception the I/O process raised, rebuilt here (same type, message and vendor code)."""
+    cls = _ERROR_TYPES.get(kind)
+    if cls is None:
+        return DriverError(f"{what}: {kind} in the FANUC I/O process: {message}")
+    err = cls.__new__(cls)
+    BaseException.__init__(err, message)
+    if isinstance(err, errors.DeviceFault):
+        err.code = code
+    return err
 
-    def __init__(self, name: str) -> None:
-        self.loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(target=self._main, name=name, daemon=True)
-        self._thread.start()
 
-    def _main(self) -> None:
-        asyncio.set_event_loop(self.loop)
+class _Request:
+    """One request in flight: its answers (progress, then one final) arrive on :attr:`answers`."""
+
+    def __init__(self) -> None:
+        self.answers: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
+
+
+class _Worker:
+    """The I/O process (:func:`drivers.fanuc_worker.worker_main`), its pipe and the thread reading answers."""
+
+    def __init__(self, settings: Settings) -> None:
+        self.name = settings.name
+        # A plain child interpreter on one end of a socket pair (not multiprocessing's spawn, which would import
+        # the host's __main__ module, the whole daemon, into it first): it imports the worker module only.
+        ours, theirs = socket.socketpair()
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (_PACKAGE_ROOT, env.get("PYTHONPATH", "")) if p)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", _WORKER_CODE, str(theirs.fileno())],
+            pass_fds=(theirs.fileno(),),
+            env=env,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+        )
+        theirs.close()
+        self.conn = Connection(ours.detach())
+        self._send_lock = threading.Lock()
+        self._pending: dict[int, _Request] = {}
+        self._ids = itertools.count(1)
+        self._ready = threading.Event()
+        self._gone: str | None = None
+        self._reader = threading.Thread(target=self._read, name=f"fanuc-rmi-{settings.name}", daemon=True)
+        self._reader.start()
+        with contextlib.suppress(ConnectionLost):
+            self.conn.send(settings)
+        if not self._ready.wait(WORKER_START_TIMEOUT_S) or self._gone is not None:
+            self.stop(grace_s=0.0)
+            raise ConnectionLost(
+                f"{self.name}: the FANUC I/O process did not start within {WORKER_START_TIMEOUT_S:.0f} s"
+            )
+
+    @property
+    def alive(self) -> bool:
+        return self._gone is None and self.proc.poll() is None
+
+    def _read(self) -> None:
+        while True:
+            try:
+                rid, kind, value = self.conn.recv()
+            except (EOFError, OSError):
+                break
+            if kind == "ready":
+                self._ready.set()
+            elif kind == "log":
+                level, message = value
+                logger.log(level, "%s", message)
+            else:
+                request = self._pending.get(rid)
+                if request is not None:
+                    request.answers.put((kind, value))
+        self._gone = f"{self.name}: the FANUC I/O process ended"
+        self._ready.set()
+        for request in list(self._pending.values()):
+            request.answers.put(("error", ("ConnectionLost", f"{self._gone}; call connect() again", None)))
+
+    def send(self, rid: int, op: str, args: tuple[Any, ...] = ()) -> None:
+        with self._send_lock:
+            try:
+                self.conn.send((rid, op, args))
+            except (OSError, ValueError) as err:
+                raise ConnectionLost(f"{self.name}: the FANUC I/O process is gone ({err}); call connect()") from err
+
+    def open(self, op: str, args: tuple[Any, ...]) -> tuple[int, _Request]:
+        """Send ``op`` and return its id and the queue its answers arrive on (close it with :meth:`close`)."""
+        if self._gone is not None:
+            raise ConnectionLost(f"{self._gone}; call connect() again")
+        rid, request = next(self._ids), _Request()
+        self._pending[rid] = request
         try:
-            self.loop.run_forever()
+            self.send(rid, op, args)
+        except BaseException:
+            self._pending.pop(rid, None)
+            raise
+        if self._gone is not None:  # ended between the check and the registration: nobody will answer
+            request.answers.put(("error", ("ConnectionLost", f"{self._gone}; call connect() again", None)))
+        return rid, request
+
+    def close(self, rid: int) -> None:
+        self._pending.pop(rid, None)
+
+    def call(self, op: str, *args: Any, timeout_s: float, what: str) -> Any:
+        """Run ``op`` in the I/O process and return its result; DeviceTimeout (and cancel it) after timeout_s."""
+        rid, request = self.open(op, args)
+        try:
+            try:
+                kind, value = request.answers.get(timeout=timeout_s)
+            except queue.Empty:
+                with contextlib.suppress(ConnectionLost):
+                    self.send(rid, "cancel")
+                raise DeviceTimeout(f"{what}: no result within {timeout_s:.1f} s") from None
         finally:
-            self.loop.close()
+            self.close(rid)
+        return result_of(kind, value, what)
 
-    def submit(self, coro: Coroutine[Any, Any, T]) -> concurrent.futures.Future[T]:
-        return asyncio.run_coroutine_threadsafe(coro, self.loop)
-
-    def run(self, coro: Coroutine[Any, Any, T], *, timeout_s: float, what: str) -> T:
-        fut = self.submit(coro)
+    def stop(self, *, grace_s: float = 2.0) -> None:
+        """Ask the process to exit; kill it after ``grace_s``; join the reader."""
+        with contextlib.suppress(ConnectionLost):
+            self.send(0, "exit")
         try:
-            return fut.result(timeout=timeout_s)
-        except TimeoutError as err:
-            if fut.done():
-                raise  # the coroutine's own TimeoutError, not ours
-            fut.cancel()
-            raise DeviceTimeout(f"{what}: no result within {timeout_s:.1f} s") from err
+            self.proc.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(2.0)
+        self.conn.close()
+        self._reader.join(timeout=2.0)
 
-    def stop(self) -> None:
-        async def cancel_all() -> None:
-            current = asyncio.current_task()
-            tasks = [t for t in asyncio.all_tasks() if t is not current]
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
 
-        if self._thread.is_alive():
-            with contextlib.suppress(TimeoutError, RuntimeError):
-                self.submit(cancel_all()).result(timeout=2.0)
-            self.loop.call_soon_threadsafe(self.loop.stop)
-            self._thread.join(timeout=5.0)
+def result_of(kind: str, value: Any, what: str) -> Any:
+    """The value of a final answer, or its error raised."""
+    if kind == "ok":
+        return value
+    raise _error_from(what, *value)
 
 
 class FanucRobot:
@@ -144,6 +239,8 @@ class FanucRobot:
     ) -> None:
         if timeout_s <= 0 or status_poll_s <= 0:
             raise ValueError(f"timeout_s and status_poll_s must be > 0, got {timeout_s}, {status_poll_s}")
+        if heartbeat_register is not None and heartbeat_register < 1:
+            raise ValueError(f"heartbeat_register is R[n] with n >= 1, got {heartbeat_register}")
         self.name = name
         self.host = host
         self.port = port
@@ -153,101 +250,81 @@ class FanucRobot:
         self.timeout_s = timeout_s
         self.status_poll_s = status_poll_s
         self.n_digital_outputs = n_digital_outputs
-        if heartbeat_register is not None and heartbeat_register < 1:
-            raise ValueError(f"heartbeat_register is R[n] with n >= 1, got {heartbeat_register}")
         self.heartbeat_register = heartbeat_register
         self.heartbeat_period_s = heartbeat_period_s
-        self._heartbeat: concurrent.futures.Future[None] | None = None
-        self._outputs_on: set[int] = set()  # outputs this driver switched on (and not off since)
-        self._motions = 0  # motions in flight
-        self._io: _LoopThread | None = None
-        self._client: RMIClient | None = None
+        self._worker: _Worker | None = None
+        self._connected = False
         self._lifecycle_lock = threading.Lock()
+
+    def _settings(self) -> Settings:
+        return Settings(
+            name=self.name,
+            host=self.host,
+            port=self.port,
+            uframe=self.uframe,
+            utool=self.utool,
+            group_mask=self.group_mask,
+            timeout_s=self.timeout_s,
+            status_poll_s=self.status_poll_s,
+            n_digital_outputs=self.n_digital_outputs,
+            heartbeat_register=self.heartbeat_register,
+            heartbeat_period_s=self.heartbeat_period_s,
+            log_level=logger.getEffectiveLevel(),
+        )
 
     # ============================================================================== connection
     def connect(self) -> None:
         """Open (or re-open) the RMI session. Raises ConnectionLost when the controller is unreachable."""
         with self._lifecycle_lock:
-            if self._io is None:
-                self._io = _LoopThread(f"fanuc-rmi-{self.name}")
-            io = self._io
-            old, self._client = self._client, None
-            if old is not None:  # a dead or stale session: close it without a goodbye
-                with contextlib.suppress(DriverError):
-                    io.run(old.close(), timeout_s=3.0, what=f"{self.name}: close old RMI session")
-            client = RMIClient(self.host, self.port, timeout_s=self.timeout_s)
+            self._connected = False
+            worker = self._worker
+            if worker is None or not worker.alive:
+                if worker is not None:
+                    worker.stop(grace_s=0.0)
+                self._worker = None
+                worker = _Worker(self._settings())
+                self._worker = worker
             try:
-                io.run(client.connect(), timeout_s=self.timeout_s + 2.0, what=f"{self.name}: connect")
+                worker.call("connect", timeout_s=self.timeout_s + 2.0, what=f"{self.name}: connect")
             except BaseException:
-                io.stop()
-                self._io = None
+                worker.stop()
+                self._worker = None
                 raise
-            self._client = client
-            if self._heartbeat is not None:
-                self._heartbeat.cancel()
-                self._heartbeat = None
-            if self.heartbeat_register is not None:
-                self._heartbeat = io.submit(self._beat(client, self.heartbeat_register))
+            self._connected = True
             logger.info("%s: connected to FANUC RMI at %s:%d", self.name, self.host, self.port)
 
-    async def _beat(self, client: RMIClient, register: int) -> None:
-        """R[register] = 1, 2, ... 30000, 1, ... every heartbeat_period_s while the session lives."""
-        count = 0
-        while client.connected:
-            # armed (counting) while an output is on or a motion is in flight; 0 (disarmed) otherwise, so that a
-            # host busy with detection for a while does not trip the controller with nothing to make safe
-            if self._outputs_on or self._motions:
-                count = count % 30000 + 1
-                value = count
-            else:
-                value = 0
-            try:
-                await client.write_numeric_register(register, value, timeout_s=self.timeout_s)
-            except DriverError as err:  # the controller's watchdog acts on the silence; say so once per failure
-                logger.warning("%s: heartbeat R[%d] not written: %s", self.name, register, err)
-            await asyncio.sleep(self.heartbeat_period_s)
-
     def disconnect(self) -> None:
-        """Say FRC_Disconnect (the controller aborts RMI_MOVE), close, stop the I/O thread. Safe twice."""
+        """Say FRC_Disconnect (the controller aborts RMI_MOVE), close, end the I/O process. Safe twice."""
         with self._lifecycle_lock:
-            client, self._client = self._client, None
-            io, self._io = self._io, None
-            if self._heartbeat is not None:
-                self._heartbeat.cancel()
-                self._heartbeat = None
-            if io is None:
+            worker, self._worker = self._worker, None
+            self._connected = False
+            if worker is None:
                 return
-            if client is not None:
-                with contextlib.suppress(DriverError):
-                    io.run(client.disconnect(timeout_s=1.0), timeout_s=4.0, what=f"{self.name}: disconnect")
-            io.stop()
+            with contextlib.suppress(DriverError):
+                worker.call("disconnect", timeout_s=4.0, what=f"{self.name}: disconnect")
+            worker.stop()
             logger.info("%s: disconnected", self.name)
 
-    def _session(self) -> tuple[_LoopThread, RMIClient]:
-        io, client = self._io, self._client
-        if io is None or client is None:
+    def _session(self) -> _Worker:
+        worker = self._worker
+        if worker is None or not self._connected:
             raise ConnectionLost(f"{self.name}: not connected to the FANUC controller; call connect() first")
-        return io, client
+        return worker
 
-    def _run(self, coro_fn: Callable[[RMIClient], Coroutine[Any, Any, T]], *, n_requests: int, what: str) -> T:
-        io, client = self._session()
-        return io.run(coro_fn(client), timeout_s=n_requests * self.timeout_s + 1.0, what=f"{self.name}: {what}")
+    def _run(self, op: str, *args: Any, n_requests: int, what: str) -> Any:
+        return self._session().call(op, *args, timeout_s=n_requests * self.timeout_s + 1.0, what=f"{self.name}: {what}")
 
     # ============================================================================== state
     def state(self) -> RobotState:
-        return self._run(self._read_state, n_requests=3 + self.n_digital_outputs, what="state")
-
-    async def _read_state(self, client: RMIClient) -> RobotState:
-        status = await client.get_status()
-        position = await client.read_cartesian_position()
-        speed_mm_s = await client.read_tcp_speed_mm_s()
-        outputs = tuple([await client.read_dout(i + 1) for i in range(self.n_digital_outputs)])
+        raw = self._run("state", n_requests=3 + self.n_digital_outputs, what="state")
+        status = RMIStatus.from_reply(raw["status"])
+        speed_mm_s, fault = float(raw["tcp_speed_mm_s"]), raw["system_fault"]
         moving = speed_mm_s > MOVING_SPEED_MM_S
         if status.emergency_stop:
             mode = RobotMode.EMERGENCY_STOP
         elif status.protective_stop:
             mode = RobotMode.PROTECTIVE_STOP
-        elif client.system_fault is not None or not status.servo_ready:
+        elif fault is not None or not status.servo_ready:
             mode = RobotMode.FAULT
         else:
             mode = RobotMode.MOVING if moving else RobotMode.IDLE
@@ -256,41 +333,36 @@ class FanucRobot:
             f"rmi_motion_status={status.rmi_motion_status} next_sequence_id={status.next_sequence_id} "
             f"tcp_speed_mm_s={speed_mm_s:.1f}"
         )
-        if client.system_fault is not None:
-            message += f"; {client.system_fault}"
+        if fault is not None:
+            message += f"; {fault}"
         return RobotState(
             mode=mode,
-            X_base_tool=X_from_xyzwpr_mm_deg(position.xyzwpr_mm_deg),
+            X_base_tool=X_from_xyzwpr_mm_deg(raw["xyzwpr_mm_deg"]),
             is_moving=moving,
             protective_stop=status.protective_stop,
             emergency_stop=status.emergency_stop,
-            digital_outputs=outputs,
+            digital_outputs=tuple(raw["digital_outputs"]),
             message=message,
         )
 
     def get_X_base_tool(self) -> FloatArray:
-        position = self._run(lambda c: c.read_cartesian_position(), n_requests=1, what="read position")
-        return X_from_xyzwpr_mm_deg(position.xyzwpr_mm_deg)
+        return X_from_xyzwpr_mm_deg(self._run("position", n_requests=1, what="read position"))
 
     # ============================================================================== I/O and stops
     def set_digital_output(self, index: int, value: bool) -> None:
         if index < 0:
             raise ValueError(f"digital output index must be >= 0 (DO[index + 1]), got {index}")
         logger.debug("%s: DO[%d] <- %s", self.name, index + 1, value)
-        if value:
-            self._outputs_on.add(index)  # armed before the output goes on
-        self._run(lambda c: c.write_dout(index + 1, bool(value)), n_requests=1, what=f"write DO[{index + 1}]")
-        if not value:
-            self._outputs_on.discard(index)
+        self._run("write_dout", index, bool(value), n_requests=1, what=f"write DO[{index + 1}]")
 
     def stop(self) -> None:
         """FRC_Abort: stop now and drop the queued instructions (a blocked move raises MotionAborted)."""
-        self._run(lambda c: c.abort(ignore_not_running=True), n_requests=1, what="abort")
+        self._run("abort", n_requests=1, what="abort")
 
     def reset_faults(self) -> None:
         """FRC_Reset: clear controller alarms, HOLD and the latched system fault; safety stops clear only once
         their cause is gone (RMIError RMIT-012 otherwise). Call after an operator acknowledged the fault."""
-        self._run(lambda c: c.reset(), n_requests=1, what="reset")
+        self._run("reset", n_requests=1, what="reset")
 
     # ============================================================================== motion
     def move_linear(
@@ -361,8 +433,7 @@ class FanucRobot:
         timeout_s: float,
         on_progress: Callable[[int], None] | None = None,
     ) -> None:
-        io, client = self._session()
-        progress: queue.SimpleQueue[int] = queue.SimpleQueue()
+        worker = self._session()
         logger.debug(
             "%s: %d linear target(s) at %d mm/s, CNT %d, timeout %.1f s",
             self.name,
@@ -371,149 +442,33 @@ class FanucRobot:
             cnt_value,
             timeout_s,
         )
-        holder: list[asyncio.Task[Any]] = []
-
-        async def motion() -> None:
-            task = asyncio.current_task()
-            assert task is not None
-            holder.append(task)
-            self._motions += 1  # the heartbeat is armed while a motion is in flight
-            try:
-                await self._motion(
-                    client,
-                    targets,
-                    speed_mm_s=speed_mm_s,
-                    cnt_value=cnt_value,
-                    timeout_s=timeout_s,
-                    on_complete=progress.put,
-                )
-            finally:
-                self._motions -= 1
-
-        def cancel_motion() -> None:  # on the loop; the motion coroutine aborts the program on its way out
-            if holder:
-                holder[0].cancel()
-            else:
-                fut.cancel()  # not started yet: nothing has moved
-
-        fut = io.submit(motion())
+        what = f"{self.name}: motion"
+        rid, request = worker.open("motion", (targets, speed_mm_s, cnt_value, timeout_s))
         # Grace for the preparation requests and a best-effort abort on the way out.
         deadline = time.monotonic() + timeout_s + 6.0 * self.timeout_s + 1.0
+        final: tuple[str, Any] | None = None
         try:
-            while not fut.done():
+            while final is None:
                 if time.monotonic() > deadline:
                     raise MotionTimeout(f"{self.name}: motion did not finish within {timeout_s} s")
-                with contextlib.suppress(queue.Empty):
-                    index = progress.get(timeout=0.02)
-                    if on_progress is not None:
-                        on_progress(index)
-            while not progress.empty():
-                index = progress.get_nowait()
-                if on_progress is not None:
-                    on_progress(index)
+                try:
+                    kind, value = request.answers.get(timeout=0.02)
+                except queue.Empty:
+                    continue
+                if kind != "progress":
+                    final = (kind, value)
+                elif on_progress is not None:
+                    on_progress(int(value))
         except BaseException:
-            io.loop.call_soon_threadsafe(cancel_motion)
-            with contextlib.suppress(BaseException):
-                fut.result(timeout=2.0 * self.timeout_s + 1.0)  # let the abort go out before returning
+            # still running (a timeout, a callback that raised, Ctrl-C): cancel it; the motion aborts the program on
+            # its way out, and that abort goes out before this returns
+            with contextlib.suppress(ConnectionLost):
+                worker.send(rid, "cancel")
+            end = time.monotonic() + 2.0 * self.timeout_s + 1.0
+            with contextlib.suppress(queue.Empty):
+                while request.answers.get(timeout=max(end - time.monotonic(), 0.0))[0] == "progress":
+                    pass
             raise
-        fut.result()
-
-    async def _motion(
-        self,
-        client: RMIClient,
-        targets: list[tuple[float, ...]],
-        *,
-        speed_mm_s: int,
-        cnt_value: int,
-        timeout_s: float,
-        on_complete: Callable[[int], None],
-    ) -> None:
-        status = await client.get_status()
-        self._raise_if_unsafe(client, status)
-        await self._prepare_program(client, status)
-        configuration = dict((await client.read_cartesian_position()).configuration)
-        configuration.update({"UFrameNumber": self.uframe, "UToolNumber": self.utool})
-        instructions = instructions_for_path(
-            targets, speed_mm_s=speed_mm_s, cnt_value=cnt_value, configuration=configuration
-        )
-        stream = asyncio.ensure_future(
-            client.run_instructions(instructions, timeout_s=timeout_s, on_complete=on_complete)
-        )
-        try:
-            while True:
-                done, _ = await asyncio.wait({stream}, timeout=self.status_poll_s)
-                if done:
-                    stream.result()
-                    return
-                self._raise_if_unsafe(client, await self._motion_status(client))
-        except BaseException as err:
-            if not stream.done():
-                stream.cancel()
-            await asyncio.gather(stream, return_exceptions=True)
-            if isinstance(err, ConnectionLost):
-                raise
-            await self._abort_quietly(client)
-            if isinstance(err, RMIError | SystemFault | MotionTimeout):
-                # An instruction refused because a safety stop hit is reported as that safety stop.
-                safety = await self._safety_error_quietly(client)
-                if safety is not None:
-                    raise safety from err
-            raise
-
-    async def _motion_status(self, client: RMIClient) -> RMIStatus:
-        """FRC_GetStatus during a motion, answered within MOTION_STATUS_TIMEOUT_S or the session is given up: a
-        controller that stops answering mid-motion is a lost connection now, not after the command timeout."""
-        timeout_s = min(self.timeout_s, MOTION_STATUS_TIMEOUT_S)
-        try:
-            return await client.get_status(timeout_s=timeout_s)
-        except DeviceTimeout as err:
-            reason = f"{self.name}: no answer to FRC_GetStatus within {timeout_s:.1f} s during a motion"
-            client.abandon(reason)
-            raise ConnectionLost(f"{reason}; connect again once it answers") from err
-
-    async def _prepare_program(self, client: RMIClient, status: RMIStatus) -> None:
-        """Make sure RMI_MOVE runs, empty, with our sequence counter; (re)initialize it otherwise."""
-        if status.rmi_running and client.in_flight == 0 and status.next_sequence_id == client.next_sequence_id:
-            return
-        if status.rmi_motion_status != 0:
-            await client.abort()
-        await client.initialize(group_mask=self.group_mask)
-        await client.set_uframe_utool(uframe=self.uframe, utool=self.utool)
-        logger.debug("%s: RMI_MOVE initialized (UFrame %d, UTool %d)", self.name, self.uframe, self.utool)
-
-    def _raise_if_unsafe(self, client: RMIClient, status: RMIStatus) -> None:
-        error = self._safety_error(client, status)
-        if error is not None:
-            raise error
-
-    def _safety_error(self, client: RMIClient, status: RMIStatus) -> DriverError | None:
-        if status.emergency_stop:
-            return EmergencyStop(
-                f"{self.name}: emergency stop is active; release it, then reset_faults() after acknowledgement"
-            )
-        if status.protective_stop:
-            return ProtectiveStop(
-                f"{self.name}: protective stop is active; clear its cause, then reset_faults() after acknowledgement"
-            )
-        if client.system_fault is not None:
-            return SystemFault(f"{client.system_fault} (latched: reset_faults() after acknowledgement)")
-        if not status.servo_ready:
-            return DeviceFault(
-                f"{self.name}: servo power is off (ServoReady=0): an e-stop, fence or alarm is active; "
-                "read the teach pendant, clear the cause, then reset_faults()"
-            )
-        return None
-
-    async def _safety_error_quietly(self, client: RMIClient) -> DriverError | None:
-        try:
-            status = await client.get_status(timeout_s=min(self.timeout_s, 1.0))
-        except DriverError:
-            return None
-        error = self._safety_error(client, status)
-        return error if isinstance(error, EmergencyStop | ProtectiveStop) else None
-
-    async def _abort_quietly(self, client: RMIClient) -> None:
-        try:
-            await client.abort(timeout_s=min(self.timeout_s, 1.0))
-        except DriverError as err:
-            logger.warning("%s: FRC_Abort after a failed motion did not succeed: %s", self.name, err)
+        finally:
+            worker.close(rid)
+        result_of(*final, what)
