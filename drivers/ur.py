@@ -68,51 +68,40 @@ from drivers.errors import (
     ProtectiveStop,
 )
 from drivers.protocols import FloatArray, RobotMode, RobotState
+from drivers.ur_protocol import (
+    DASHBOARD_PORT,
+    ESTOP_MASK,
+    PROTECTIVE_MASK,
+    REPLY_BRAKE_RELEASING,
+    REPLY_POWERING_ON,
+    REPLY_UNLOCK_TOO_EARLY,
+    REPLY_UNLOCKED,
+    ROBOT_MODE_BOOTING,
+    ROBOT_MODE_IDLE,
+    ROBOT_MODE_NAMES,
+    ROBOT_MODE_POWER_OFF,
+    ROBOT_MODE_POWER_ON,
+    ROBOT_MODE_RUNNING,
+    RTDE_PORT,
+    RUNTIME_PLAYING,
+    SAFETY_BIT_FAULT,
+    SAFETY_BIT_VIOLATION,
+)
 from perception.transforms import TransformError, X_from_ur_pose, check_X, rotation_angle_rad, ur_pose_from_X
 
 log = logging.getLogger(__name__)
 
 INSTALL_HINT = "ur-rtde is not installed: pip install 'ur-rtde>=1.5.8,<2' (it provides rtde_control, rtde_receive)"
 
-RTDE_PORT = 30004
-DASHBOARD_PORT = 29999
-
 # limits ur-rtde checks before sending (rtde_control_interface.h)
 TOOL_SPEED_MAX_M_S = 3.0
 TOOL_ACCEL_MAX_M_S2 = 150.0
 BLEND_MAX_M = 2.0
 
-# RTDE safety_status_bits, robot_mode and runtime_state values
-_BIT_PROTECTIVE_STOPPED = 2
-_BIT_SAFEGUARD_STOPPED = 4
-_BIT_SYSTEM_EMERGENCY_STOPPED = 5
-_BIT_ROBOT_EMERGENCY_STOPPED = 6
-_BIT_EMERGENCY_STOPPED = 7
-_BIT_VIOLATION = 8
-_BIT_FAULT = 9
-_ESTOP_MASK = (1 << _BIT_EMERGENCY_STOPPED) | (1 << _BIT_ROBOT_EMERGENCY_STOPPED) | (1 << _BIT_SYSTEM_EMERGENCY_STOPPED)
-_ROBOT_MODE_BOOTING = 2
-_ROBOT_MODE_POWER_OFF = 3
-_ROBOT_MODE_POWER_ON = 4
-_ROBOT_MODE_IDLE = 5
-_ROBOT_MODE_RUNNING = 7
 # the robot modes the dashboard can bring to RUNNING (booting and idle are on the way)
 _RECOVERABLE_MODES = frozenset(
-    {_ROBOT_MODE_BOOTING, _ROBOT_MODE_POWER_OFF, _ROBOT_MODE_POWER_ON, _ROBOT_MODE_IDLE, _ROBOT_MODE_RUNNING}
+    {ROBOT_MODE_BOOTING, ROBOT_MODE_POWER_OFF, ROBOT_MODE_POWER_ON, ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING}
 )
-_ROBOT_MODE_NAMES = {
-    -1: "NO_CONTROLLER",
-    0: "DISCONNECTED",
-    1: "CONFIRM_SAFETY",
-    2: "BOOTING",
-    3: "POWER_OFF",
-    4: "POWER_ON",
-    5: "IDLE",
-    6: "BACKDRIVE",
-    7: "RUNNING",
-    8: "UPDATING_FIRMWARE",
-}
-_RUNTIME_PLAYING = 2
 
 # what the receive interface streams for this driver (a small recipe keeps the controller's load low)
 RECEIVE_VARIABLES = (
@@ -130,11 +119,6 @@ RECEIVE_VARIABLES = (
 _MOVING_SPEED_M_S = 1e-4
 _MOVING_SPEED_RAD_S = 1e-3
 
-# dashboard replies (the same text on CB3 and e-Series)
-_REPLY_UNLOCKED = "Protective stop releasing"
-_REPLY_UNLOCK_TOO_EARLY = "Cannot unlock protective stop"
-_REPLY_POWERING_ON = "Powering on"
-_REPLY_BRAKE_RELEASING = "Brake releasing"
 _UNLOCK_RETRY_S = 0.25
 
 
@@ -337,15 +321,11 @@ class _Status:
 
     @property
     def emergency_stop(self) -> bool:
-        bits = self.safety_status_bits
-        mask = (
-            (1 << _BIT_EMERGENCY_STOPPED) | (1 << _BIT_ROBOT_EMERGENCY_STOPPED) | (1 << _BIT_SYSTEM_EMERGENCY_STOPPED)
-        )
-        return bool(bits & mask)
+        return bool(self.safety_status_bits & ESTOP_MASK)
 
     @property
     def protective_stop(self) -> bool:
-        return bool(self.safety_status_bits & ((1 << _BIT_PROTECTIVE_STOPPED) | (1 << _BIT_SAFEGUARD_STOPPED)))
+        return bool(self.safety_status_bits & PROTECTIVE_MASK)
 
     @property
     def moving(self) -> bool:
@@ -354,7 +334,7 @@ class _Status:
 
     @property
     def program_running(self) -> bool:
-        return self.runtime_state == _RUNTIME_PLAYING
+        return self.runtime_state == RUNTIME_PLAYING
 
 
 class URRobot:
@@ -548,10 +528,10 @@ class URRobot:
             mode, message = RobotMode.EMERGENCY_STOP, f"emergency stop (safety mode {st.safety_mode})"
         elif st.protective_stop:
             mode, message = RobotMode.PROTECTIVE_STOP, f"protective stop (safety mode {st.safety_mode})"
-        elif bits & ((1 << _BIT_FAULT) | (1 << _BIT_VIOLATION)):
+        elif bits & ((1 << SAFETY_BIT_FAULT) | (1 << SAFETY_BIT_VIOLATION)):
             mode, message = RobotMode.FAULT, f"safety fault or violation (safety status bits {bits:#x})"
-        elif st.robot_mode != _ROBOT_MODE_RUNNING:
-            robot_mode = _ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))
+        elif st.robot_mode != ROBOT_MODE_RUNNING:
+            robot_mode = ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))
             mode, message = RobotMode.FAULT, f"robot mode {robot_mode}: power the arm on and release its brakes"
         else:
             mode, message = (RobotMode.MOVING if st.moving else RobotMode.IDLE), ""
@@ -682,20 +662,20 @@ class URRobot:
         """
         deadline = time.monotonic() + timeout_s
         st = self._status()
-        stopped = st.emergency_stop or st.protective_stop or st.robot_mode != _ROBOT_MODE_RUNNING
+        stopped = st.emergency_stop or st.protective_stop or st.robot_mode != ROBOT_MODE_RUNNING
         if stopped:
             log.info(
                 "%s: recovering (robot mode %s, safety mode %d)",
                 self.name,
-                _ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode)),
+                ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode)),
                 st.safety_mode,
             )
             self._dashboard("close safety popup")
-        if st.emergency_stop or st.robot_mode != _ROBOT_MODE_RUNNING:
+        if st.emergency_stop or st.robot_mode != ROBOT_MODE_RUNNING:
             st = self._power_up(st, deadline)
         if st.protective_stop:
             st = self._unlock(deadline)
-        if st.robot_mode != _ROBOT_MODE_RUNNING:  # the arm idled while it stood in the stop
+        if st.robot_mode != ROBOT_MODE_RUNNING:  # the arm idled while it stood in the stop
             st = self._power_up(st, deadline)
         self._ready_for_motion(deadline)
         if stopped:
@@ -713,9 +693,9 @@ class URRobot:
         """``unlock protective stop``, asked again while the controller says it is too early; wait until released."""
         while True:
             reply = self._dashboard("unlock protective stop")
-            if reply.startswith(_REPLY_UNLOCKED):
+            if reply.startswith(REPLY_UNLOCKED):
                 break
-            if not reply.startswith(_REPLY_UNLOCK_TOO_EARLY) or time.monotonic() + _UNLOCK_RETRY_S > deadline:
+            if not reply.startswith(REPLY_UNLOCK_TOO_EARLY) or time.monotonic() + _UNLOCK_RETRY_S > deadline:
                 raise ProtectiveStop(f"{self.name}: the controller refused to unlock the protective stop: {reply!r}")
             time.sleep(_UNLOCK_RETRY_S)  # a CB3 refuses the unlock until 5 s after the stop
         return self._wait_for(
@@ -724,17 +704,17 @@ class URRobot:
 
     def _power_up(self, st: _Status, deadline: float) -> _Status:
         """Power on (a powered-off arm, or after an emergency stop), release the brakes, wait for RUNNING."""
-        powered = (_ROBOT_MODE_IDLE, _ROBOT_MODE_RUNNING)
-        if st.emergency_stop or st.robot_mode == _ROBOT_MODE_POWER_OFF:
+        powered = (ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING)
+        if st.emergency_stop or st.robot_mode == ROBOT_MODE_POWER_OFF:
             reply = self._dashboard("power on")
-            if not reply.startswith(_REPLY_POWERING_ON):
+            if not reply.startswith(REPLY_POWERING_ON):
                 if st.emergency_stop:
                     raise EmergencyStop(
                         f"{self.name}: the controller refused to power on ({reply!r}): the emergency stop is still "
                         "engaged; release it, then acknowledge again"
                     )
                 raise DeviceFault(f"{self.name}: the controller refused to power on: {reply!r}")
-        if st.robot_mode != _ROBOT_MODE_RUNNING:
+        if st.robot_mode != ROBOT_MODE_RUNNING:
             # a released emergency stop resets as the arm powers on: one still engaged a moment later is pressed
             st = self._wait_for(
                 lambda s: s.robot_mode in powered and not s.emergency_stop,
@@ -742,11 +722,11 @@ class URRobot:
                 "the arm did not power on",
                 estop_deadline=min(deadline, time.monotonic() + self.command_timeout_s),
             )
-        if st.robot_mode == _ROBOT_MODE_IDLE:
+        if st.robot_mode == ROBOT_MODE_IDLE:
             reply = self._dashboard("brake release")
-            if not reply.startswith(_REPLY_BRAKE_RELEASING):
+            if not reply.startswith(REPLY_BRAKE_RELEASING):
                 raise DeviceFault(f"{self.name}: the controller refused to release the brakes: {reply!r}")
-            st = self._wait_for(lambda s: s.robot_mode == _ROBOT_MODE_RUNNING, deadline, "the brakes were not released")
+            st = self._wait_for(lambda s: s.robot_mode == ROBOT_MODE_RUNNING, deadline, "the brakes were not released")
         return st
 
     def _wait_for(
@@ -761,7 +741,7 @@ class URRobot:
             if done(st):
                 return st
             now = time.monotonic()
-            robot_mode = _ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))
+            robot_mode = ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))
             if st.emergency_stop and now > estop_deadline:
                 raise EmergencyStop(
                     f"{self.name}: the emergency stop is still engaged (robot mode {robot_mode}); release it, then "
@@ -813,8 +793,8 @@ class URRobot:
     def _ready_for_motion(self, deadline: float) -> _Status:
         st = self._status()
         self._raise_if_stopped(st, "before the motion")
-        if st.robot_mode != _ROBOT_MODE_RUNNING:
-            robot_mode = _ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))
+        if st.robot_mode != ROBOT_MODE_RUNNING:
+            robot_mode = ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))
             raise DeviceFault(f"{self.name}: robot mode is {robot_mode}; power the arm on and release its brakes")
         if not st.program_running:
             log.info("%s: the ur-rtde control script is not running on %s; uploading it again", self.name, self.host)
