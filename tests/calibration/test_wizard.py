@@ -49,13 +49,14 @@ from perception.capture import CameraIntrinsics, Capture
 from perception.transforms import X_from_xyzwpr_mm_deg, invert_X, look_at_X, make_X, rotation_angle_rad
 from sim_fakes.fake_camera import CHARUCO_SCENE, BoardTarget, FakeCamera
 from sim_fakes.fake_fanuc import DEFAULT_START_XYZWPR_MM_DEG, FakeFanucController
+from sim_fakes.loopback import free_loopback_host
 from sim_fakes.render import X_TOOL_CAMERA
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples"
 TOL_MM = 0.5
 TOL_DEG = 0.1
-UR_TEST_HOST = "127.0.0.46"  # the examples use .41 (sim-cell) and .45 (sim-calib); tests/cell uses .43
+UR_TEST_HOST = free_loopback_host()  # this session's own; the examples use .41 (sim-cell) and .45 (sim-calib)
 OUR_THREAD_PREFIXES = ("fake-track", "fake-fanuc", "fanuc-rmi")
 CAD_HAND_EYE = {
     "format": RESULT_FORMAT,

@@ -39,12 +39,13 @@ from cell.runner import CellFaulted, JobReport, JobRunner, safety_limits
 from drivers.errors import DriverError
 from perception.transforms import X_from_xyzwpr_mm_deg, rotation_angle_rad
 from sim_fakes import fake_ur
+from sim_fakes.loopback import free_loopback_host
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples"
 ROBOTS = ("fanuc", "ur5")
 EXAMPLE = {"fanuc": "sim-cell-fanuc.toml", "ur5": "sim-cell.toml"}
-UR_HOST = "127.0.0.44"  # not the example's .41 (a 'weldcell sim up' may be running) nor other tests' .43, .46
+UR_HOST = free_loopback_host()  # this session's own: not the example's .41 ('weldcell sim up' may run there)
 
 STATES_OF_A_JOB = [
     "homing",

@@ -269,9 +269,11 @@ def test_factory_builds_a_simulated_ur_cell(tmp_path: Path) -> None:
     from cell.factory import build_cell
     from drivers.ur import URRobot
     from sim_fakes.fake_ur import FakeURController
+    from sim_fakes.loopback import free_loopback_host
 
     text = (REPO / "examples" / "sim-cell.toml").read_text(encoding="utf-8")
-    text = text.replace('host = "127.0.0.41"', 'host = "127.0.0.43"').replace("port = 5020", f"port = {free_port()}")
+    host = free_loopback_host()
+    text = text.replace('host = "127.0.0.41"', f'host = "{host}"').replace("port = 5020", f"port = {free_port()}")
     text = text.replace("resolution = [640, 360]", "resolution = [160, 90]")
     path = tmp_path / "ur.toml"
     path.write_text(text, encoding="utf-8")
@@ -283,4 +285,4 @@ def test_factory_builds_a_simulated_ur_cell(tmp_path: Path) -> None:
         cap = cell.camera.capture(timeout_s=10)  # the scene sits under the UR's home pose in this example
         assert (cap.depth_m == cap.depth_m).mean() > 0.9
     with socket.socket() as sock, pytest.raises(ConnectionRefusedError):  # the fake UR's process is gone
-        sock.connect(("127.0.0.43", 30004))
+        sock.connect((host, 30004))

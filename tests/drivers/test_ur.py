@@ -1,6 +1,7 @@
 """URRobot (drivers/ur.py) against the fake UR controller (sim_fakes/fake_ur.py) through the real ur-rtde client.
 
-One fake per module on 127.0.0.21, returned to its initial state before each test; a fresh driver per test.
+One fake per module on a free loopback address of this session, returned to its initial state before each test;
+a fresh driver per test.
 """
 
 from __future__ import annotations
@@ -31,11 +32,13 @@ from drivers.ur import URRobot
 from perception.transforms import make_X, rotation_angle_rad
 from sim_fakes.fake_ur import Q_HOME, Arm, FakeURController, Motion, Waypoint, build_segments
 from sim_fakes.faults import FaultInjectable
+from sim_fakes.loopback import free_loopback_host
 from tests.drivers.robot_contract import RobotContract, assert_pose_close, offset
 
-HOST = "127.0.0.21"
-HOST_B = "127.0.0.22"
-UNUSED_HOST = "127.0.0.213"  # nothing listens here
+# loopback addresses of this test session (the UR ports are fixed; another session may use them elsewhere)
+HOST = free_loopback_host()
+HOST_B = free_loopback_host()
+UNUSED_HOST = free_loopback_host()  # nothing listens here
 
 # ur-rtde writes path poses into URScript with 6 significant digits
 PATH_ROUNDING_M = 5e-6
@@ -491,7 +494,7 @@ def test_driver_refuses_a_non_standard_rtde_port():
 
 @pytest.mark.timeout(45)
 def test_two_fakes_on_two_loopback_addresses(fake):
-    """A CB3 UR5 on 127.0.0.21 and an e-Series UR5e (500 Hz RTDE) on 127.0.0.22, moved at the same time."""
+    """A CB3 UR5 and an e-Series UR5e (500 Hz RTDE), on two loopback addresses, moved at the same time."""
     fake.reset()
     with FakeURController(HOST_B, model="UR5e", controller_version=(5, 15, 0, 123456)) as fake_b:
         robot_a = URRobot(HOST, name="ur-a")

@@ -22,9 +22,10 @@ pytest.importorskip("rtde_control", reason="ur-rtde is not installed")
 
 from drivers.ur import URRobot
 from sim_fakes.fake_ur import FakeURController
+from sim_fakes.loopback import free_loopback_host
 from tests.drivers.robot_contract import offset
 
-HOST = "127.0.0.23"
+HOST = free_loopback_host()  # this test session's own (the UR ports are fixed)
 ARC = 0
 HEARTBEAT_TIMEOUT_S = 0.3
 REPO = Path(__file__).resolve().parents[2]
