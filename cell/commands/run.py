@@ -1,7 +1,12 @@
 """``weldcell run JOB --config cell.toml``: run one job on the cell and print its report.
 
 Exit codes: 0 the job is done (or a dry run planned and validated its path); 1 the job ended in fault (the reason
-on stderr) or was not approved; 2 a bad job or config file; 3 no seam found.
+on stderr) or was not approved, or the journal shows an unclean stop nobody has acknowledged; 2 a bad job or config
+file; 3 no seam found.
+
+After an unclean stop (the journal shows a job that was running when its process stopped: the torch may stand on
+the part), the cell starts in ``fault``, as ``weldcell serve`` does: nothing moves until an operator acknowledges
+(``--acknowledge``, with ``--operator``). The fault is journaled, so it holds for every later run until then.
 """
 
 from __future__ import annotations
@@ -11,7 +16,10 @@ import getpass
 import json
 import logging
 import sys
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
+
+if TYPE_CHECKING:
+    from cell.journal import Journal
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -32,6 +40,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--yes", action="store_true", help="approve the planned path without asking (approval = true jobs)")
     p.add_argument("--operator", default=None, help="the approving operator's name (default: the login name)")
     p.add_argument("--journal", default=None, help="journal file (default: [daemon] journal of the config)")
+    p.add_argument(
+        "--acknowledge",
+        action="store_true",
+        help="after an unclean stop: the operator (--operator) has checked the torch and the part; leave fault",
+    )
     p.set_defaults(func=run_job)
 
 
@@ -64,8 +77,15 @@ def run_job(args: argparse.Namespace) -> int:
         return operator if answer.strip().lower() in ("y", "yes") else None
 
     with Journal(journal_path) as journal, build_cell(config, start_simulators=True) as cell:
+        unclean = unclean_stop(journal)
         cell.connect()
         runner = JobRunner(cell, journal=journal, on_progress=show)
+        if unclean is not None:
+            runner.machine.fault_now(unclean)  # stops and switches off first; journaled until acknowledged
+            if not args.acknowledge:
+                print(f"weldcell run: the cell is in fault: {unclean}", file=sys.stderr)
+                return EXIT_FAILURE
+            runner.acknowledge(operator)
         for i in range(len(job.captures)):
             runner.capture_pose(job, i)  # a fixture-relative job on a cell without [fixture]: ConfigError, exit 2
         report = runner.run(job, dry_run=args.dry_run, approve=approve)
@@ -82,6 +102,21 @@ def run_job(args: argparse.Namespace) -> int:
         return EXIT_NO_SEAM
     print(f"weldcell run: job {report.job_id} {report.outcome}: {report.reason}", file=sys.stderr)
     return EXIT_FAILURE
+
+
+def unclean_stop(journal: Journal) -> str | None:
+    """Why the cell must start in ``fault``, or None: a job was running when the previous process stopped (found
+    by this journal open, or by an earlier one and not acknowledged since: the cell's last event is that fault)."""
+    unclean = [r.id for r in journal.interrupted if r.started_s is not None]
+    if unclean:
+        return (
+            f"unclean stop: job {', '.join(map(str, unclean))} was running when the previous process stopped; "
+            "check the torch and the part, then run again with --acknowledge --operator NAME"
+        )
+    events = journal.events(None)
+    if events and events[-1].to_state == "fault" and events[-1].reason.startswith("unclean stop"):
+        return str(events[-1].reason)
+    return None
 
 
 def _login() -> str:
