@@ -16,9 +16,12 @@ What guards them, in order, for every request:
    an ``Origin`` header that is not this daemon's own (or one of ``[daemon] allowed_origins``), or
    ``Sec-Fetch-Site: cross-site``. Clients that are not browsers send no ``Origin`` and are not affected.
 4. Bodies: at most ``max_body_bytes`` (413, also for a chunked body that grows past it), read within
-   ``request_timeout_s`` (408), of a type the route takes (415): JSON for the operator commands, JSON or a job's
-   TOML text (``application/toml``, ``text/plain``) for ``POST /jobs``; the ``application/x-www-form-urlencoded``
-   that curl -d and urllib send by default is read as the route's own format (JSON, or TOML for a job).
+   ``request_timeout_s`` (408), of a type the route takes (415): ``application/json`` for the operator commands
+   (a form-encoded body is refused there), JSON or a job's TOML text (``application/toml``, ``text/plain``) for
+   ``POST /jobs``, where the ``application/x-www-form-urlencoded`` that curl -d and urllib send by default is read
+   as TOML.
+
+``HEAD`` is answered on every ``GET`` route as HTTP says: the status and headers ``GET`` would give, no body.
 
 Errors are JSON ``{"error": "..."}`` with the right status (404 for an unknown path, 405 with ``Allow`` for a
 wrong method, 500 for a bug, logged with its traceback here, never sent). The server side (uvicorn's h11 protocol)
@@ -55,7 +58,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 MAX_JOB_ID = 2**63 - 1  # SQLite INTEGER
-JSON_TYPES = ("application/json", "application/x-www-form-urlencoded")  # the latter: curl -d and urllib's default
+JSON_TYPES = ("application/json",)
 JOB_TYPES = ("application/json", "application/toml", "text/plain", "text/x-toml", "application/x-www-form-urlencoded")
 
 
@@ -165,14 +168,22 @@ def build_app(daemon: Daemon, port: int) -> FastAPI:
             )
         if request.method not in ("GET", "HEAD", "OPTIONS") and not guards.same_origin(request):
             return _error(403, "cross-origin requests may not change the cell's state")
+        head = request.method == "HEAD"
+        if head:  # routed as GET; the server (uvicorn) sends no body for a request it parsed as HEAD
+            request.scope["method"] = "GET"
+            request.scope["weldcell.head"] = True
         try:
             return await call_next(request)
         except HTTPError as err:
             return _error(err.status, err.message, err.headers)
+        finally:
+            if head:
+                request.scope["method"] = "HEAD"
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        message = {404: f"no such resource {request.url.path}", 405: f"{request.method} is not allowed here"}.get(
+        method = "HEAD" if request.scope.get("weldcell.head") else request.method
+        message = {404: f"no such resource {request.url.path}", 405: f"{method} is not allowed here"}.get(
             exc.status_code, str(exc.detail)
         )
         return _error(exc.status_code, message, dict(exc.headers or {}))

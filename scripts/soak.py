@@ -91,6 +91,7 @@ HOSTILE = (  # (path, headers, body, expected status, a piece of the error)
     ("/jobs", {"Content-Type": "application/json"}, b'{"path": "/etc/passwd"}', 400, "configured directories"),
     ("/jobs", {"Content-Type": "application/json"}, b'{"path": "../../../etc/shadow"}', 400, "configured directories"),
     ("/acknowledge", {"Origin": "http://evil.example"}, b'{"operator": "mallory"}', 403, "cross-origin"),
+    ("/acknowledge", {"Content-Type": "application/x-www-form-urlencoded"}, b"operator=mallory", 415, "json"),
     ("/jobs", {"Content-Type": "application/toml"}, b"a = " + b"[" * 5000 + b"]" * 5000, 400, "nested too deeply"),
     ("/jobs", {"Content-Type": "application/toml"}, b"#" * (2 << 20), 413, "larger than"),
     ("/jobs", {"Content-Type": "application/json"}, b'{"toml": "workpiece = 1", "dry_run": "false"}', 400, "boolean"),

@@ -44,8 +44,12 @@ def free_port() -> int:
 def request(
     url: str, *, method: str = "GET", body: bytes | None = None, headers: dict[str, str] | None = None
 ) -> tuple[int, Any]:
-    """(status, decoded JSON or text) of one HTTP request."""
-    req = urllib.request.Request(url, data=body, method=method, headers=headers or {})
+    """(status, decoded JSON or text) of one HTTP request; a JSON object body goes as ``application/json`` unless
+    ``headers`` say otherwise (urllib's default is form-encoded, which the JSON routes refuse)."""
+    headers = dict(headers or {})
+    if body is not None and body[:1] == b"{" and not any(k.lower() == "content-type" for k in headers):
+        headers["Content-Type"] = "application/json"
+    req = urllib.request.Request(url, data=body, method=method, headers=headers)
     try:
         with urllib.request.urlopen(req, timeout=10) as resp:
             status, data, ctype = resp.status, resp.read(), resp.headers.get("Content-Type", "")

@@ -269,6 +269,36 @@ def test_errors_are_json_with_the_right_status(served: Served) -> None:
 
 
 @pytest.mark.timeout(60)
+def test_head_on_a_get_route_answers_its_headers_without_a_body(served: Served) -> None:
+    host = f"{served.host}:{served.port}"
+    for path in ("/status", "/jobs", "/metrics", "/", "/openapi.json"):
+        [(get_status, get_headers, body)] = served.raw(f"GET {path} HTTP/1.1\r\nHost: {host}\r\n\r\n".encode())
+        data = f"HEAD {path} HTTP/1.1\r\nHost: {host}\r\n\r\n".encode()
+        [(status, headers, rest)] = served.raw(data, head=True)
+        assert (status, get_status, rest) == (200, 200, b""), path
+        assert headers["content-type"] == get_headers["content-type"], path
+        if path != "/metrics":  # the metrics change between the two requests (uptime, requests served)
+            assert int(headers["content-length"]) == len(body) > 0, path
+    [(status, headers, rest)] = served.raw(f"HEAD /pause HTTP/1.1\r\nHost: {host}\r\n\r\n".encode(), head=True)
+    assert (status, headers["allow"], rest) == (405, "POST", b"")
+    [(status, _, rest)] = served.raw(f"HEAD /nowhere HTTP/1.1\r\nHost: {host}\r\n\r\n".encode(), head=True)
+    assert (status, rest) == (404, b"")
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("path", ["/acknowledge", "/pause", "/jobs/1/approve"])
+def test_a_form_encoded_body_on_a_json_route_is_415(served: Served, path: str) -> None:
+    form = {"Content-Type": "application/x-www-form-urlencoded"}
+    status, answer = request(f"{served.base}{path}", method="POST", body=b'{"operator": "Ada"}', headers=form)
+    assert status == 415 and answer["error"] == (
+        "send the body as application/json, not application/x-www-form-urlencoded"
+    )
+    status, answer = request(f"{served.base}{path}", method="POST", body=b"operator=Ada", headers=form)
+    assert status == 415
+    assert_cell_safe(served)
+
+
+@pytest.mark.timeout(60)
 def test_deep_nesting_gets_a_clean_400(served: Served) -> None:
     deep_toml = ("a = " + "[" * 5000 + "]" * 5000 + "\n").encode()
     status, answer = request(f"{served.base}/jobs", method="POST", body=deep_toml)
