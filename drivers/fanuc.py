@@ -49,7 +49,7 @@ import numpy as np
 
 from drivers import errors
 from drivers.errors import ConnectionLost, DeviceTimeout, DriverError, MotionRejected, MotionTimeout
-from drivers.fanuc_rmi import RMI_CONNECT_PORT, RMIMotionRejected, RMIStatus
+from drivers.fanuc_protocol import RMI_CONNECT_PORT, RMIMotionRejected, RMIStatus
 from drivers.fanuc_worker import MOTION_STATUS_TIMEOUT_S, MOVING_SPEED_MM_S, Settings
 from drivers.protocols import FloatArray, RobotMode, RobotState
 from perception.transforms import TransformError, X_from_xyzwpr_mm_deg, check_X, xyzwpr_mm_deg_from_X

@@ -43,7 +43,8 @@ from drivers.errors import (
     RMIError,
     SystemFault,
 )
-from drivers.fanuc_rmi import RMIClient, RMIStatus, instructions_for_path
+from drivers.fanuc_protocol import RMIStatus, instructions_for_path
+from drivers.fanuc_rmi import RMIClient
 
 logger = logging.getLogger("drivers.fanuc")
 
