@@ -40,88 +40,27 @@ import logging
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from drivers.fanuc_rmi import MAX_INSTRUCTIONS_IN_FLIGHT, ErrorID
+from drivers.fanuc_protocol import MAX_INSTRUCTIONS_IN_FLIGHT, POSITION_KEYS, TERMINATOR, ErrorID, Packet
+from sim_fakes.fanuc_program import HeartbeatProgram, InstructionRecord, Segment, instruction_record, parse_packet
 from sim_fakes.loop_thread import LoopThreadFake
 
 logger = logging.getLogger(__name__)
 
+__all__ = ["DEFAULT_START_XYZWPR_MM_DEG", "FakeFanucController", "HeartbeatProgram", "InstructionRecord"]
+
 T = TypeVar("T")
-Packet = dict[str, Any]
 
 N_DOUT = 64
 N_UFRAME = 9
 N_UTOOL = 10
-_TERMINATOR = b"\r\n"
-_POSITION_KEYS = ("X", "Y", "Z", "W", "P", "R")
+N_REGISTERS = 200
 DEFAULT_START_XYZWPR_MM_DEG = (500.0, 0.0, 400.0, 180.0, 0.0, 0.0)
 """Tool pointing down (tool z along base -z) 0.5 m in front of the base, 0.4 m up: reachable, no faults."""
-
-
-@dataclass(frozen=True)
-class HeartbeatProgram:
-    """The integrator's ``WC_HBEAT`` watchdog as installed on the controller: ``register`` (``R[n]``) is the host's
-    heartbeat, ``timeout_s`` how long it may stand still, ``arc_ports`` the ``DO[..]`` switched OFF on a trip."""
-
-    register: int = 90
-    timeout_s: float = 0.3
-    arc_ports: tuple[int, ...] = (1,)
-
-
-N_REGISTERS = 200
-
-
-@dataclass(frozen=True)
-class InstructionRecord:
-    """One TP instruction as the fake received it (device units), with the ErrorID it was answered with
-    at once (0 when it was accepted into the buffer) and the number in flight just after it arrived."""
-
-    sequence_id: int
-    instruction: str
-    xyzwpr_mm_deg: tuple[float, ...]
-    speed: float
-    speed_type: str
-    term_type: str
-    term_value: int
-    error_id: int
-    in_flight: int
-    received_s: float
-
-
-@dataclass
-class _Segment:
-    """A queued linear move: positions in mm, rotations as scipy Rotations."""
-
-    seq: int
-    instruction: str
-    p_target_mm: NDArray[np.float64]
-    R_target: Rotation
-    speed_mm_s: float
-    term_type: str
-    p_start_mm: NDArray[np.float64] | None = None
-    R_start: Rotation | None = None
-    rotvec_delta: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
-    duration_s: float = 0.0
-    elapsed_s: float = 0.0
-
-    def begin(self, p_mm: NDArray[np.float64], R: Rotation, *, max_rotation_speed_deg_s: float) -> None:
-        self.p_start_mm = p_mm.copy()
-        self.R_start = R
-        self.rotvec_delta = (R.inv() * self.R_target).as_rotvec()
-        distance_mm = float(np.linalg.norm(self.p_target_mm - p_mm))
-        angle_deg = float(np.degrees(np.linalg.norm(self.rotvec_delta)))
-        self.duration_s = max(distance_mm / self.speed_mm_s, angle_deg / max_rotation_speed_deg_s)
-
-    def pose_at(self, fraction: float) -> tuple[NDArray[np.float64], Rotation]:
-        assert self.p_start_mm is not None and self.R_start is not None
-        p = self.p_start_mm + fraction * (self.p_target_mm - self.p_start_mm)
-        return p, self.R_start * Rotation.from_rotvec(fraction * self.rotvec_delta)
 
 
 class _Session:
@@ -184,7 +123,7 @@ class FakeFanucController(LoopThreadFake):
         self._hold = False
         self._next_seq = 1
         self._last_completed_seq = 0
-        self._queue: deque[_Segment] = deque()
+        self._queue: deque[Segment] = deque()
         self._uframe = 0
         self._utool = 1
         self._dout = [False] * (N_DOUT + 1)  # index 0 unused: ports are 1-based
@@ -335,7 +274,7 @@ class FakeFanucController(LoopThreadFake):
         if session is None or self._no_answer or session.writer.is_closing():
             return
         logger.debug("fake FANUC -> %s", msg)
-        session.writer.write(json.dumps(msg).encode() + _TERMINATOR)
+        session.writer.write(json.dumps(msg).encode() + TERMINATOR)
 
     async def _on_connect_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """The well-known port: FRC_Connect only."""
@@ -344,10 +283,10 @@ class FakeFanucController(LoopThreadFake):
             if self._dropped:
                 return
             while True:
-                line = await reader.readuntil(_TERMINATOR)
+                line = await reader.readuntil(TERMINATOR)
                 if self._no_answer:
                     continue
-                msg = _parse(line)
+                msg = parse_packet(line)
                 if msg is None or msg.get("Communication") != "FRC_Connect":
                     name = "Unknown" if msg is None else str(msg.get("Communication", msg.get("Command", "Unknown")))
                     reply: Packet = {"Communication": name, "ErrorID": int(ErrorID.INVALID_COMMAND)}
@@ -362,7 +301,7 @@ class FakeFanucController(LoopThreadFake):
                         "MajorVersion": 1,
                         "MinorVersion": 0,
                     }
-                writer.write(json.dumps(reply).encode() + _TERMINATOR)
+                writer.write(json.dumps(reply).encode() + TERMINATOR)
                 await writer.drain()
         except (asyncio.IncompleteReadError, asyncio.LimitOverrunError, ConnectionError):
             pass
@@ -398,10 +337,10 @@ class FakeFanucController(LoopThreadFake):
         self._writers.add(writer)
         try:
             while not session.closing:
-                line = await reader.readuntil(_TERMINATOR)
+                line = await reader.readuntil(TERMINATOR)
                 if self._no_answer:
                     continue
-                msg = _parse(line)
+                msg = parse_packet(line)
                 if msg is None:
                     logger.warning("fake FANUC: ignoring a packet that is not a JSON object: %r", line[:200])
                     continue
@@ -556,7 +495,7 @@ class FakeFanucController(LoopThreadFake):
         }
 
     def _cmd_read_cartesian(self, msg: Packet) -> Packet:
-        position = dict(zip(_POSITION_KEYS, self._xyzwpr(), strict=True))
+        position = dict(zip(POSITION_KEYS, self._xyzwpr(), strict=True))
         position.update({"Ext1": 0.0, "Ext2": 0.0, "Ext3": 0.0})
         return {
             "TimeTag": self._time_tag(),
@@ -615,11 +554,11 @@ class FakeFanucController(LoopThreadFake):
             self._queue.append(segment)
             self._next_seq = seq + 1
             self._max_in_flight = max(self._max_in_flight, len(self._queue))
-        self._records.append(_record(name, seq, msg, error, len(self._queue), time.monotonic() - self._t0))
+        self._records.append(instruction_record(name, seq, msg, error, len(self._queue), time.monotonic() - self._t0))
         if error != 0:
             self._send({"Instruction": name, "ErrorID": error, "SequenceID": seq})
 
-    def _admit(self, name: str, seq: int, msg: Packet) -> tuple[int, _Segment | None]:
+    def _admit(self, name: str, seq: int, msg: Packet) -> tuple[int, Segment | None]:
         """The ErrorID the instruction is refused with (0 = accepted), in the order a controller checks."""
         if not self._running:
             return int(ErrorID.NOT_RUNNING), None
@@ -642,12 +581,12 @@ class FakeFanucController(LoopThreadFake):
             self._next_seq = seq + 1
         return error, segment
 
-    def _parse_motion(self, name: str, seq: int, msg: Packet) -> tuple[int, _Segment | None]:
+    def _parse_motion(self, name: str, seq: int, msg: Packet) -> tuple[int, Segment | None]:
         if name != "FRC_LinearMotion":
             return int(ErrorID.INVALID_INSTRUCTION), None
         try:
             pos = msg["Position"]
-            xyzwpr = np.array([float(pos[k]) for k in _POSITION_KEYS])
+            xyzwpr = np.array([float(pos[k]) for k in POSITION_KEYS])
         except (KeyError, TypeError, ValueError):
             return int(ErrorID.INVALID_POSITION_DATA), None
         if not np.all(np.isfinite(xyzwpr)):
@@ -665,7 +604,7 @@ class FakeFanucController(LoopThreadFake):
             return int(ErrorID.INVALID_TERM_VALUE), None
         if np.linalg.norm(xyzwpr[:3]) > self._reach_mm:
             return int(ErrorID.INVALID_DESTINATION), None
-        segment = _Segment(
+        segment = Segment(
             seq=seq,
             instruction=name,
             p_target_mm=xyzwpr[:3],
@@ -728,34 +667,3 @@ class FakeFanucController(LoopThreadFake):
 
     def _time_tag(self) -> int:
         return int((time.monotonic() - self._t0) * 1000.0)
-
-
-def _parse(line: bytes) -> Packet | None:
-    try:
-        msg = json.loads(line)
-    except json.JSONDecodeError:
-        return None
-    return msg if isinstance(msg, dict) else None
-
-
-def _record(name: str, seq: int, msg: Packet, error: int, in_flight: int, received_s: float) -> InstructionRecord:
-    pos = msg.get("Position") if isinstance(msg.get("Position"), dict) else {}
-    assert isinstance(pos, dict)
-    xyzwpr = tuple(_as_float(pos.get(k)) for k in _POSITION_KEYS)
-    term_value = msg.get("TermValue", -1)
-    return InstructionRecord(
-        sequence_id=seq,
-        instruction=name,
-        xyzwpr_mm_deg=xyzwpr,
-        speed=_as_float(msg.get("Speed")),
-        speed_type=str(msg.get("SpeedType", "")),
-        term_type=str(msg.get("TermType", "")),
-        term_value=int(term_value) if isinstance(term_value, int) else -1,
-        error_id=error,
-        in_flight=in_flight,
-        received_s=received_s,
-    )
-
-
-def _as_float(value: object) -> float:
-    return float(value) if isinstance(value, int | float) else float("nan")
