@@ -36,7 +36,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from drivers.track import (
+from drivers.track_registers import (
     COIL_ENABLE,
     COIL_FAULT_RESET,
     COIL_STOP,
