@@ -8,6 +8,7 @@ Why a worker process: ur-rtde's C++ calls hold the GIL while they wait, and seve
 "done" never comes from a hung controller). A thread cannot time such a call out, so every ur-rtde object lives in
 a child process and this driver talks to it over a pipe with a deadline on each request: when a deadline passes
 the child is killed and :class:`drivers.errors.DeviceTimeout` is raised; :meth:`URRobot.connect` starts a fresh one.
+What runs in the child lives in :mod:`drivers.ur_worker`.
 
 Motions are sent asynchronously (``moveL(..., asynchronous=True)``) and followed by polling the RTDE state every
 controller cycle, so a protective stop (safety status bit 2), an emergency stop (bits 5-7), a lost connection or a
@@ -43,15 +44,11 @@ from __future__ import annotations
 import logging
 import math
 import multiprocessing
-import os
-import signal
 import socket
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from multiprocessing.connection import Connection
-from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -61,7 +58,6 @@ from drivers.errors import (
     DeviceFault,
     DeviceTimeout,
     DriverError,
-    DriverNotInstalled,
     EmergencyStop,
     MotionRejected,
     MotionTimeout,
@@ -70,8 +66,6 @@ from drivers.errors import (
 from drivers.protocols import FloatArray, RobotMode, RobotState
 from drivers.ur_protocol import (
     DASHBOARD_PORT,
-    ESTOP_MASK,
-    PROTECTIVE_MASK,
     REPLY_BRAKE_RELEASING,
     REPLY_POWERING_ON,
     REPLY_UNLOCK_TOO_EARLY,
@@ -83,15 +77,14 @@ from drivers.ur_protocol import (
     ROBOT_MODE_POWER_ON,
     ROBOT_MODE_RUNNING,
     RTDE_PORT,
-    RUNTIME_PLAYING,
     SAFETY_BIT_FAULT,
     SAFETY_BIT_VIOLATION,
 )
+from drivers.ur_worker import Status, import_ur_rtde, worker_main
 from perception.transforms import TransformError, X_from_ur_pose, check_X, rotation_angle_rad, ur_pose_from_X
 
 log = logging.getLogger(__name__)
 
-INSTALL_HINT = "ur-rtde is not installed: pip install 'ur-rtde>=1.5.8,<2' (it provides rtde_control, rtde_receive)"
 
 # limits ur-rtde checks before sending (rtde_control_interface.h)
 TOOL_SPEED_MAX_M_S = 3.0
@@ -103,22 +96,6 @@ _RECOVERABLE_MODES = frozenset(
     {ROBOT_MODE_BOOTING, ROBOT_MODE_POWER_OFF, ROBOT_MODE_POWER_ON, ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING}
 )
 
-# what the receive interface streams for this driver (a small recipe keeps the controller's load low)
-RECEIVE_VARIABLES = (
-    "timestamp",
-    "actual_TCP_pose",
-    "actual_TCP_speed",
-    "robot_mode",
-    "safety_mode",
-    "safety_status_bits",
-    "runtime_state",
-    "actual_digital_output_bits",
-    "target_speed_fraction",
-)
-
-_MOVING_SPEED_M_S = 1e-4
-_MOVING_SPEED_RAD_S = 1e-3
-
 _UNLOCK_RETRY_S = 0.25
 
 
@@ -126,215 +103,9 @@ class URRTDEError(Exception):
     """An exception ur-rtde raised in the worker process; the message keeps its type name and text."""
 
 
-def _import_ur_rtde() -> tuple[ModuleType, ModuleType, ModuleType, ModuleType]:
-    try:
-        import dashboard_client
-        import rtde_control
-        import rtde_io
-        import rtde_receive
-    except ImportError as err:
-        raise DriverNotInstalled(f"{INSTALL_HINT} ({err})") from err
-    return rtde_receive, rtde_control, rtde_io, dashboard_client
-
-
 def _ur_pose(X_base_tool: FloatArray) -> list[float]:
     """UR pose vector of a 4x4 pose: the one place where poses change representation for ur-rtde."""
     return [float(v) for v in ur_pose_from_X(X_base_tool)]
-
-
-# --------------------------------------------------------------------------------------------- worker process
-
-
-class _Worker:
-    """Owns the ur-rtde interfaces inside the worker process; each ``op_*`` answers one request.
-
-    ``heartbeat_timeout_s`` (None: no watchdog): the control script is told (``setWatchdog``) to stop its program
-    when the host's heartbeat is missing for that long, and a thread of this process sends the heartbeat
-    (``kickWatchdog``) six times per timeout. Every ur-rtde call, the heartbeat's included, holds :attr:`lock`: the
-    control interface's register handshake must not interleave.
-    """
-
-    def __init__(self, host: str, dashboard_port: int, heartbeat_timeout_s: float | None) -> None:
-        self.host = host
-        self.dashboard_port = dashboard_port
-        self.heartbeat_timeout_s = heartbeat_timeout_s
-        self.receive: Any = None
-        self.control: Any = None
-        self.io: Any = None
-        self.lock = threading.Lock()
-        self._heartbeat: threading.Thread | None = None
-
-    def op_connect(self) -> dict[str, Any]:
-        rtde_receive, rtde_control, rtde_io, _ = _import_ur_rtde()
-        self.receive = rtde_receive.RTDEReceiveInterface(self.host, -1.0, list(RECEIVE_VARIABLES))
-        self.control = rtde_control.RTDEControlInterface(self.host)
-        self.io = rtde_io.RTDEIOInterface(self.host)
-        if self.control.isProgramRunning():  # not after a safety stop: reset_faults uploads and arms it then
-            self._arm_watchdog()
-        if self.heartbeat_timeout_s is not None and self._heartbeat is None:
-            self._heartbeat = threading.Thread(target=self._beat, name="ur-heartbeat", daemon=True)
-            self._heartbeat.start()
-        return self.op_state()
-
-    def _arm_watchdog(self) -> None:
-        """Tell the (new) control script to stop its program when the heartbeat stops: a program start removes
-        the watchdogs of the one before (URScript ``rtde_set_watchdog``), so this follows every upload."""
-        if self.heartbeat_timeout_s is None:
-            return
-        # a script that stopped meanwhile (a refused target) is reported by the motion's own checks
-        if not self.control.setWatchdog(1.0 / self.heartbeat_timeout_s) and self.control.isProgramRunning():
-            raise ConnectionLost("the running control script did not accept setWatchdog")
-
-    def _beat(self) -> None:
-        period = (self.heartbeat_timeout_s or 1.0) / 6.0
-        while True:
-            time.sleep(period)
-            with self.lock:
-                control = self.control
-                if control is not None and control.isConnected() and control.isProgramRunning():
-                    control.kickWatchdog()
-
-    def op_state(self) -> dict[str, Any]:
-        r, c = self.receive, self.control
-        if not r.isConnected():
-            raise ConnectionLost("the RTDE receive connection closed")
-        status = c.getAsyncOperationProgressEx()
-        return {
-            "timestamp": r.getTimestamp(),
-            "pose": list(r.getActualTCPPose()),
-            "speed": list(r.getActualTCPSpeed()),
-            "robot_mode": r.getRobotMode(),
-            "safety_mode": r.getSafetyMode(),
-            "safety_status_bits": r.getSafetyStatusBits(),
-            "runtime_state": r.getRuntimeState(),
-            "digital_output_bits": r.getActualDigitalOutputBits(),
-            "control_connected": c.isConnected(),
-            "control_ready": c.isProgramRunning(),
-            "async_running": status.isAsyncOperationRunning(),
-            "async_progress": status.progress(),
-        }
-
-    def op_move_linear(self, pose: list[float], speed: float, accel: float) -> bool:
-        return bool(self.control.moveL(pose, speed, accel, True))
-
-    def op_move_path(self, path: list[list[float]]) -> bool:
-        """ur-rtde uploads a new control script carrying the path, and a program stop drives the outputs that the
-        installation sets low at a program stop (the arc) low. So: hold the arm with the speed slider at 0 while
-        the new script starts the path, arm the new script's watchdog, switch back on what the upload switched
-        off, then let the arm go."""
-        bits_before = int(self.receive.getActualDigitalOutputBits())
-        self.io.setSpeedSlider(0.0)
-        try:
-            deadline = time.monotonic() + 1.0
-            while self.receive.getTargetSpeedFraction() > 0.0:  # held before the program restarts
-                if time.monotonic() > deadline:
-                    raise ConnectionLost("the speed slider did not read back 0 before the path upload")
-                time.sleep(0.004)
-            accepted = bool(self.control.moveL(path, True))
-            if accepted:
-                self._arm_watchdog()
-                time.sleep(0.02)  # two controller cycles: the receive stream shows what the program stop did
-                dropped = bits_before & ~int(self.receive.getActualDigitalOutputBits())
-                for index in range(8):
-                    if dropped >> index & 1:
-                        self.io.setStandardDigitalOut(index, True)
-                deadline = time.monotonic() + 1.0
-                while dropped & ~int(self.receive.getActualDigitalOutputBits()):
-                    if time.monotonic() > deadline:
-                        raise ConnectionLost(f"outputs {dropped:#x} did not read back on after the path upload")
-                    time.sleep(0.004)
-        finally:
-            self.io.setSpeedSlider(1.0)
-        return accepted
-
-    def op_stop(self, decel: float) -> None:
-        self.control.stopL(decel, False)
-
-    def op_reupload(self) -> bool:
-        ok = bool(self.control.reuploadScript())
-        if ok:
-            self._arm_watchdog()
-        return ok
-
-    def op_set_digital_output(self, index: int, value: bool) -> bool:
-        return bool(self.io.setStandardDigitalOut(index, value))
-
-    def op_dashboard(self, commands: list[str]) -> list[str]:
-        _, _, _, dashboard_client = _import_ur_rtde()
-        client = dashboard_client.DashboardClient(self.host, self.dashboard_port)
-        client.connect()
-        replies = []
-        for command in commands:
-            client.send(command + "\n")
-            replies.append(client.receive())
-        client.disconnect()
-        return replies
-
-    def op_close(self) -> None:
-        control = self.control
-        if control is not None and control.isConnected() and control.isProgramRunning():
-            control.stopScript()
-
-
-def _worker_main(conn: Connection, host: str, dashboard_port: int, heartbeat_timeout_s: float | None) -> None:
-    """Entry point of the worker process: answer requests until told to close or the driver goes away.
-
-    When the driver's process dies (even by SIGKILL) the pipe ends, this process exits and the heartbeat stops with
-    it: the controller's watchdog then stops the program (arm stopped, arc output low)."""
-    # Ctrl-C reaches the whole process group; the driver handles it (and stops the arm through this worker)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    worker = _Worker(host, dashboard_port, heartbeat_timeout_s)
-    while True:
-        try:
-            op, args = conn.recv()
-        except (EOFError, OSError):
-            os._exit(0)
-        try:
-            with worker.lock:
-                result = getattr(worker, f"op_{op}")(*args)
-            conn.send(("ok", result))
-        except Exception as err:
-            conn.send(("error", type(err).__name__, str(err)))
-        if op == "close":
-            conn.close()
-            # ur-rtde's disconnect() sleeps 0.5 s per interface; ending the process closes the sockets just as well
-            os._exit(0)
-
-
-# --------------------------------------------------------------------------------------------- the driver
-
-
-@dataclass(frozen=True)
-class _Status:
-    """One RTDE state sample as the driver uses it."""
-
-    X_base_tool: FloatArray
-    tcp_speed: tuple[float, ...]
-    robot_mode: int
-    safety_mode: int
-    safety_status_bits: int
-    runtime_state: int
-    digital_output_bits: int
-    async_running: bool
-    async_progress: int
-    control_ready: bool  # the control interface's own view of the script: running
-
-    @property
-    def emergency_stop(self) -> bool:
-        return bool(self.safety_status_bits & ESTOP_MASK)
-
-    @property
-    def protective_stop(self) -> bool:
-        return bool(self.safety_status_bits & PROTECTIVE_MASK)
-
-    @property
-    def moving(self) -> bool:
-        v = self.tcp_speed
-        return math.hypot(v[0], v[1], v[2]) > _MOVING_SPEED_M_S or math.hypot(v[3], v[4], v[5]) > _MOVING_SPEED_RAD_S
-
-    @property
-    def program_running(self) -> bool:
-        return self.runtime_state == RUNTIME_PLAYING
 
 
 class URRobot:
@@ -398,14 +169,14 @@ class URRobot:
     # ------------------------------------------------------------------ connection
     def connect(self) -> None:
         """Connect (again): a fresh worker with fresh ur-rtde interfaces; ConnectionLost when unreachable."""
-        _import_ur_rtde()
+        import_ur_rtde()
         with self._lock:
             self.disconnect()
             self._preflight()
             ctx = multiprocessing.get_context("spawn")
             parent, child = ctx.Pipe()
             proc = ctx.Process(
-                target=_worker_main,
+                target=worker_main,
                 args=(child, self.host, self.dashboard_port, self.heartbeat_timeout_s),
                 name=f"ur-rtde-{self.name}-{self.host}",
                 daemon=True,
@@ -492,10 +263,10 @@ class URRobot:
         raise DeviceFault(f"{self.name}: ur-rtde failed in {op!r} at {self.host}: {kind}: {message}") from cause
 
     # ------------------------------------------------------------------ state
-    def _status(self) -> _Status:
+    def _status(self) -> Status:
         return self._status_from(self._request("state", timeout_s=self.command_timeout_s))
 
-    def _status_from(self, raw: dict[str, Any]) -> _Status:
+    def _status_from(self, raw: dict[str, Any]) -> Status:
         now = time.monotonic()
         if raw["timestamp"] != self._last_timestamp:
             self._last_timestamp = raw["timestamp"]
@@ -508,7 +279,7 @@ class URRobot:
             )
         if not raw["control_connected"]:
             raise ConnectionLost(f"{self.name}: the RTDE control connection to {self.host} closed; call connect()")
-        return _Status(
+        return Status(
             X_base_tool=X_from_ur_pose(raw["pose"]),
             tcp_speed=tuple(raw["speed"]),
             robot_mode=int(raw["robot_mode"]),
@@ -689,7 +460,7 @@ class URRobot:
         log.debug("%s: dashboard replied %r", self.name, reply)
         return reply
 
-    def _unlock(self, deadline: float) -> _Status:
+    def _unlock(self, deadline: float) -> Status:
         """``unlock protective stop``, asked again while the controller says it is too early; wait until released."""
         while True:
             reply = self._dashboard("unlock protective stop")
@@ -702,7 +473,7 @@ class URRobot:
             lambda st: not st.protective_stop, deadline, "the protective stop is still active after unlocking"
         )
 
-    def _power_up(self, st: _Status, deadline: float) -> _Status:
+    def _power_up(self, st: Status, deadline: float) -> Status:
         """Power on (a powered-off arm, or after an emergency stop), release the brakes, wait for RUNNING."""
         powered = (ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING)
         if st.emergency_stop or st.robot_mode == ROBOT_MODE_POWER_OFF:
@@ -730,8 +501,8 @@ class URRobot:
         return st
 
     def _wait_for(
-        self, done: Callable[[_Status], bool], deadline: float, what: str, *, estop_deadline: float | None = None
-    ) -> _Status:
+        self, done: Callable[[Status], bool], deadline: float, what: str, *, estop_deadline: float | None = None
+    ) -> Status:
         """Poll the state until ``done(state)``. Raises EmergencyStop when the emergency stop is still engaged past
         ``estop_deadline`` (or ``deadline``), DeviceFault when the robot mode needs the pendant, DeviceTimeout
         (saying ``what``) past ``deadline``."""
@@ -778,7 +549,7 @@ class URRobot:
         """Time allowed for one request: the command timeout, but never past the motion's deadline."""
         return max(0.0, min(self.command_timeout_s, deadline - time.monotonic()))
 
-    def _raise_if_stopped(self, st: _Status, what: str) -> None:
+    def _raise_if_stopped(self, st: Status, what: str) -> None:
         here = np.round(st.X_base_tool[:3, 3], 4).tolist()
         if st.emergency_stop:
             raise EmergencyStop(
@@ -790,7 +561,7 @@ class URRobot:
                 f"{self.name}: protective stop {what} (tool at {here} m); inspect the cause, then reset_faults()"
             )
 
-    def _ready_for_motion(self, deadline: float) -> _Status:
+    def _ready_for_motion(self, deadline: float) -> Status:
         st = self._status()
         self._raise_if_stopped(st, "before the motion")
         if st.robot_mode != ROBOT_MODE_RUNNING:
@@ -824,7 +595,7 @@ class URRobot:
             )
         raise MotionRejected(f"{self.name}: the controller did not accept {what} to {target} m")
 
-    def _arrived(self, st: _Status, X_target: FloatArray) -> tuple[bool, float, float]:
+    def _arrived(self, st: Status, X_target: FloatArray) -> tuple[bool, float, float]:
         dist = float(np.linalg.norm(st.X_base_tool[:3, 3] - X_target[:3, 3]))
         angle = rotation_angle_rad(st.X_base_tool, X_target)
         return dist <= self.arrive_tol_m and angle <= self.arrive_tol_rad, dist, angle

@@ -1,0 +1,244 @@
+"""The UR driver's worker process (:mod:`drivers.ur`): every ur-rtde object lives here, behind a pipe.
+
+ur-rtde's C++ calls hold the GIL while they wait, several without a bound; :class:`drivers.ur.URRobot` sends each
+request over the pipe with a deadline and kills this process when one passes. This module holds what runs in it
+(``Worker``, ``worker_main``, the heartbeat thread that kicks the controller's watchdog) and :class:`Status`, one
+RTDE state sample as the driver reads it. Units: metres, radians, seconds; poses are UR pose vectors.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import threading
+import time
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from types import ModuleType
+from typing import Any
+
+from drivers.errors import ConnectionLost, DriverNotInstalled
+from drivers.protocols import FloatArray
+from drivers.ur_protocol import ESTOP_MASK, PROTECTIVE_MASK, RUNTIME_PLAYING
+
+INSTALL_HINT = "ur-rtde is not installed: pip install 'ur-rtde>=1.5.8,<2' (it provides rtde_control, rtde_receive)"
+
+# what the receive interface streams for this driver (a small recipe keeps the controller's load low)
+RECEIVE_VARIABLES = (
+    "timestamp",
+    "actual_TCP_pose",
+    "actual_TCP_speed",
+    "robot_mode",
+    "safety_mode",
+    "safety_status_bits",
+    "runtime_state",
+    "actual_digital_output_bits",
+    "target_speed_fraction",
+)
+
+_MOVING_SPEED_M_S = 1e-4
+_MOVING_SPEED_RAD_S = 1e-3
+
+
+def import_ur_rtde() -> tuple[ModuleType, ModuleType, ModuleType, ModuleType]:
+    try:
+        import dashboard_client
+        import rtde_control
+        import rtde_io
+        import rtde_receive
+    except ImportError as err:
+        raise DriverNotInstalled(f"{INSTALL_HINT} ({err})") from err
+    return rtde_receive, rtde_control, rtde_io, dashboard_client
+
+
+# --------------------------------------------------------------------------------------------- worker process
+
+
+class Worker:
+    """Owns the ur-rtde interfaces inside the worker process; each ``op_*`` answers one request.
+
+    ``heartbeat_timeout_s`` (None: no watchdog): the control script is told (``setWatchdog``) to stop its program
+    when the host's heartbeat is missing for that long, and a thread of this process sends the heartbeat
+    (``kickWatchdog``) six times per timeout. Every ur-rtde call, the heartbeat's included, holds :attr:`lock`: the
+    control interface's register handshake must not interleave.
+    """
+
+    def __init__(self, host: str, dashboard_port: int, heartbeat_timeout_s: float | None) -> None:
+        self.host = host
+        self.dashboard_port = dashboard_port
+        self.heartbeat_timeout_s = heartbeat_timeout_s
+        self.receive: Any = None
+        self.control: Any = None
+        self.io: Any = None
+        self.lock = threading.Lock()
+        self._heartbeat: threading.Thread | None = None
+
+    def op_connect(self) -> dict[str, Any]:
+        rtde_receive, rtde_control, rtde_io, _ = import_ur_rtde()
+        self.receive = rtde_receive.RTDEReceiveInterface(self.host, -1.0, list(RECEIVE_VARIABLES))
+        self.control = rtde_control.RTDEControlInterface(self.host)
+        self.io = rtde_io.RTDEIOInterface(self.host)
+        if self.control.isProgramRunning():  # not after a safety stop: reset_faults uploads and arms it then
+            self._arm_watchdog()
+        if self.heartbeat_timeout_s is not None and self._heartbeat is None:
+            self._heartbeat = threading.Thread(target=self._beat, name="ur-heartbeat", daemon=True)
+            self._heartbeat.start()
+        return self.op_state()
+
+    def _arm_watchdog(self) -> None:
+        """Tell the (new) control script to stop its program when the heartbeat stops: a program start removes
+        the watchdogs of the one before (URScript ``rtde_set_watchdog``), so this follows every upload."""
+        if self.heartbeat_timeout_s is None:
+            return
+        # a script that stopped meanwhile (a refused target) is reported by the motion's own checks
+        if not self.control.setWatchdog(1.0 / self.heartbeat_timeout_s) and self.control.isProgramRunning():
+            raise ConnectionLost("the running control script did not accept setWatchdog")
+
+    def _beat(self) -> None:
+        period = (self.heartbeat_timeout_s or 1.0) / 6.0
+        while True:
+            time.sleep(period)
+            with self.lock:
+                control = self.control
+                if control is not None and control.isConnected() and control.isProgramRunning():
+                    control.kickWatchdog()
+
+    def op_state(self) -> dict[str, Any]:
+        r, c = self.receive, self.control
+        if not r.isConnected():
+            raise ConnectionLost("the RTDE receive connection closed")
+        status = c.getAsyncOperationProgressEx()
+        return {
+            "timestamp": r.getTimestamp(),
+            "pose": list(r.getActualTCPPose()),
+            "speed": list(r.getActualTCPSpeed()),
+            "robot_mode": r.getRobotMode(),
+            "safety_mode": r.getSafetyMode(),
+            "safety_status_bits": r.getSafetyStatusBits(),
+            "runtime_state": r.getRuntimeState(),
+            "digital_output_bits": r.getActualDigitalOutputBits(),
+            "control_connected": c.isConnected(),
+            "control_ready": c.isProgramRunning(),
+            "async_running": status.isAsyncOperationRunning(),
+            "async_progress": status.progress(),
+        }
+
+    def op_move_linear(self, pose: list[float], speed: float, accel: float) -> bool:
+        return bool(self.control.moveL(pose, speed, accel, True))
+
+    def op_move_path(self, path: list[list[float]]) -> bool:
+        """ur-rtde uploads a new control script carrying the path, and a program stop drives the outputs that the
+        installation sets low at a program stop (the arc) low. So: hold the arm with the speed slider at 0 while
+        the new script starts the path, arm the new script's watchdog, switch back on what the upload switched
+        off, then let the arm go."""
+        bits_before = int(self.receive.getActualDigitalOutputBits())
+        self.io.setSpeedSlider(0.0)
+        try:
+            deadline = time.monotonic() + 1.0
+            while self.receive.getTargetSpeedFraction() > 0.0:  # held before the program restarts
+                if time.monotonic() > deadline:
+                    raise ConnectionLost("the speed slider did not read back 0 before the path upload")
+                time.sleep(0.004)
+            accepted = bool(self.control.moveL(path, True))
+            if accepted:
+                self._arm_watchdog()
+                time.sleep(0.02)  # two controller cycles: the receive stream shows what the program stop did
+                dropped = bits_before & ~int(self.receive.getActualDigitalOutputBits())
+                for index in range(8):
+                    if dropped >> index & 1:
+                        self.io.setStandardDigitalOut(index, True)
+                deadline = time.monotonic() + 1.0
+                while dropped & ~int(self.receive.getActualDigitalOutputBits()):
+                    if time.monotonic() > deadline:
+                        raise ConnectionLost(f"outputs {dropped:#x} did not read back on after the path upload")
+                    time.sleep(0.004)
+        finally:
+            self.io.setSpeedSlider(1.0)
+        return accepted
+
+    def op_stop(self, decel: float) -> None:
+        self.control.stopL(decel, False)
+
+    def op_reupload(self) -> bool:
+        ok = bool(self.control.reuploadScript())
+        if ok:
+            self._arm_watchdog()
+        return ok
+
+    def op_set_digital_output(self, index: int, value: bool) -> bool:
+        return bool(self.io.setStandardDigitalOut(index, value))
+
+    def op_dashboard(self, commands: list[str]) -> list[str]:
+        _, _, _, dashboard_client = import_ur_rtde()
+        client = dashboard_client.DashboardClient(self.host, self.dashboard_port)
+        client.connect()
+        replies = []
+        for command in commands:
+            client.send(command + "\n")
+            replies.append(client.receive())
+        client.disconnect()
+        return replies
+
+    def op_close(self) -> None:
+        control = self.control
+        if control is not None and control.isConnected() and control.isProgramRunning():
+            control.stopScript()
+
+
+def worker_main(conn: Connection, host: str, dashboard_port: int, heartbeat_timeout_s: float | None) -> None:
+    """Entry point of the worker process: answer requests until told to close or the driver goes away.
+
+    When the driver's process dies (even by SIGKILL) the pipe ends, this process exits and the heartbeat stops with
+    it: the controller's watchdog then stops the program (arm stopped, arc output low)."""
+    # Ctrl-C reaches the whole process group; the driver handles it (and stops the arm through this worker)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    worker = Worker(host, dashboard_port, heartbeat_timeout_s)
+    while True:
+        try:
+            op, args = conn.recv()
+        except (EOFError, OSError):
+            os._exit(0)
+        try:
+            with worker.lock:
+                result = getattr(worker, f"op_{op}")(*args)
+            conn.send(("ok", result))
+        except Exception as err:
+            conn.send(("error", type(err).__name__, str(err)))
+        if op == "close":
+            conn.close()
+            # ur-rtde's disconnect() sleeps 0.5 s per interface; ending the process closes the sockets just as well
+            os._exit(0)
+
+
+@dataclass(frozen=True)
+class Status:
+    """One RTDE state sample as the driver uses it."""
+
+    X_base_tool: FloatArray
+    tcp_speed: tuple[float, ...]
+    robot_mode: int
+    safety_mode: int
+    safety_status_bits: int
+    runtime_state: int
+    digital_output_bits: int
+    async_running: bool
+    async_progress: int
+    control_ready: bool  # the control interface's own view of the script: running
+
+    @property
+    def emergency_stop(self) -> bool:
+        return bool(self.safety_status_bits & ESTOP_MASK)
+
+    @property
+    def protective_stop(self) -> bool:
+        return bool(self.safety_status_bits & PROTECTIVE_MASK)
+
+    @property
+    def moving(self) -> bool:
+        v = self.tcp_speed
+        return math.hypot(v[0], v[1], v[2]) > _MOVING_SPEED_M_S or math.hypot(v[3], v[4], v[5]) > _MOVING_SPEED_RAD_S
+
+    @property
+    def program_running(self) -> bool:
+        return self.runtime_state == RUNTIME_PLAYING
