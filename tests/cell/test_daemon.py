@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import queue
+import re
 import signal
 import socket
 import subprocess
@@ -303,17 +304,22 @@ class Served:
 
 def served_config(tmp_path: Path) -> tuple[Path, CellConfig]:
     """The FANUC example on free fixed ports (the simulators run here, the daemon in a child process)."""
-    text = (EXAMPLES / "sim-cell-fanuc.toml").read_text(encoding="utf-8")
-    replacements = {
-        "port = 16001": f"port = {free_port()}",
+    return config_from_example(tmp_path, "sim-cell-fanuc.toml", {"port = 16001": f"port = {free_port()}"})
+
+
+def config_from_example(tmp_path: Path, example: str, replacements: dict[str, str]) -> tuple[Path, CellConfig]:
+    """``examples/<example>`` with each key of ``replacements`` (found exactly once) replaced, as tmp_path/cell.toml;
+    the port, speed, journal and status image lines that every served config changes are replaced too."""
+    text = (EXAMPLES / example).read_text(encoding="utf-8")
+    text = re.sub(r'(?m)^journal = "[^"]*"', f'journal = "{tmp_path / "journal.sqlite3"}"', text, count=1)
+    text = re.sub(r'(?m)^status_image = "[^"]*"', f'status_image = "{tmp_path / "status.png"}"', text, count=1)
+    common = {
         "port = 5020": f"port = {free_port()}",
         "port = 8765": f"port = {free_port()}",
         "speed_m_s = 0.1                # default tool speed": "speed_m_s = 0.5",
         "max_speed_m_s = 0.30": "max_speed_m_s = 0.6",
-        'journal = "../out/weldcell-fanuc-journal.sqlite3"': f'journal = "{tmp_path / "journal.sqlite3"}"',
-        'status_image = "../out/weldcell-fanuc-status.png"': f'status_image = "{tmp_path / "status.png"}"',
     }
-    for old, new in replacements.items():
+    for old, new in {**common, **replacements}.items():
         assert text.count(old) == 1, old
         text = text.replace(old, new)
     path = tmp_path / "cell.toml"
