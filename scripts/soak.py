@@ -55,16 +55,11 @@ import json
 import math
 import os
 import re
-import signal
 import sqlite3
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 import tomllib
-import urllib.error
-import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -74,322 +69,40 @@ from typing import Any, TextIO
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-DEFAULT_FAULTS = (
-    "camera_timeout",
-    "track_fault",
-    "protective_stop",
-    "connection_drop",
-    "no_answer",
-    "unreachable_pose",
-    "link_drop_arc",
-    "malformed",
-    "hostile",
+from soak_daemon import Client, ServedDaemon  # noqa: E402
+from soak_in_process import run_in_process_soak  # noqa: E402
+from soak_plan import (  # noqa: E402
+    ARC_OFF_WITHIN_S,
+    DEFAULT_FAULTS,
+    HOSTILE,
+    FaultKind,
+    PlannedJob,
+    job_variant,
+    plan_jobs,
+    soak_config,
+    toml_dumps,
 )
-ARC_OFF_WITHIN_S = 1.0
-"""After no_answer or a dropped link with the arc on, the simulated controller must read the arc off within this."""
-HOSTILE = (  # (path, headers, body, expected status, a piece of the error)
-    ("/jobs", {"Content-Type": "application/json"}, b'{"path": "/etc/passwd"}', 400, "configured directories"),
-    ("/jobs", {"Content-Type": "application/json"}, b'{"path": "../../../etc/shadow"}', 400, "configured directories"),
-    ("/acknowledge", {"Origin": "http://evil.example"}, b'{"operator": "mallory"}', 403, "cross-origin"),
-    ("/acknowledge", {"Content-Type": "application/x-www-form-urlencoded"}, b"operator=mallory", 415, "json"),
-    ("/jobs", {"Content-Type": "application/toml"}, b"a = " + b"[" * 5000 + b"]" * 5000, 400, "nested too deeply"),
-    ("/jobs", {"Content-Type": "application/toml"}, b"#" * (2 << 20), 413, "larger than"),
-    ("/jobs", {"Content-Type": "application/json"}, b'{"toml": "workpiece = 1", "dry_run": "false"}', 400, "boolean"),
-)
+
+__all__ = [
+    "ARC_OFF_WITHIN_S",
+    "DEFAULT_FAULTS",
+    "HOSTILE",
+    "Client",
+    "FaultKind",
+    "PlannedJob",
+    "ServedDaemon",
+    "job_variant",
+    "main",
+    "plan_jobs",
+    "print_summary",
+    "run_daemon_soak",
+    "run_in_process_soak",
+    "soak_config",
+    "toml_dumps",
+]
+
 OPERATOR = "soak"
 FINAL_JOB_STATES = ("done", "failed", "cancelled", "dry_run", "interrupted")
-
-
-# ================================================================================================ the plan
-@dataclass(frozen=True)
-class FaultKind:
-    """One kind of fault job. ``device``/``fault``/``params``: what is switched on in which simulator (None: the
-    job itself is bad); ``when``: ``"idle"`` (before the job starts), ``"arc_on"`` (once its first arc is on) or
-    ``"never"``; ``weld``: the job welds (else a dry run); ``state``/``outcome``/``error``: the expected journal
-    state, report outcome and a piece of the error (``outcome`` None: refused at submission with a 4xx)."""
-
-    name: str
-    device: str | None
-    fault: str | None
-    params: dict[str, Any]
-    when: str
-    weld: bool
-    state: str
-    outcome: str | None
-    error: str
-
-
-FAULTS: dict[str, FaultKind] = {
-    f.name: f
-    for f in (
-        FaultKind("camera_timeout", "camera", "frame_timeout", {}, "idle", False, "failed", "fault", "no frame within"),
-        FaultKind(
-            "connection_drop", "robot", "drop_connection", {}, "idle", False, "failed", "fault", "ConnectionLost"
-        ),
-        FaultKind("protective_stop", "robot", "protective_stop", {}, "arc_on", True, "failed", "fault", "protective"),
-        FaultKind(
-            "track_fault", "track", "track_fault", {"code": 0x7310}, "arc_on", True, "failed", "fault", "fault latched"
-        ),
-        FaultKind("unreachable_pose", None, None, {}, "never", False, "", None, "[safety] reach_radius_m"),
-        FaultKind("malformed", None, None, {}, "never", False, "", None, ""),
-        # the controller stops answering / the host link drops while the arc is on: a fault within a second,
-        # and the controller's own heartbeat watchdog switches the arc off (read from the simulator itself)
-        FaultKind("no_answer", "robot", "no_answer", {}, "arc_on", True, "failed", "fault", "ConnectionLost|no status"),
-        FaultKind("link_drop_arc", "robot", "drop_connection", {}, "arc_on", True, "failed", "fault", "ConnectionLost"),
-        # hostile requests (files outside the jobs directory, cross-origin, oversized, deep nesting): 4xx, no job
-        FaultKind("hostile", None, None, {}, "never", False, "", None, ""),
-    )
-}
-
-
-@dataclass(frozen=True)
-class PlannedJob:
-    """Job ``index`` (1-based) of the soak: ``kind`` is ``"dry"``, ``"weld"`` or a fault name; ``occurrence``: how
-    many faults of that kind came before it."""
-
-    index: int
-    kind: str
-    weld: bool
-    fault: FaultKind | None = None
-    occurrence: int = 0
-
-
-def plan_jobs(n_jobs: int, *, fault_every: int, weld_every: int, faults: tuple[str, ...]) -> list[PlannedJob]:
-    """The soak's jobs: a fault every ``fault_every`` (in turn from ``faults``), a weld every ``weld_every`` and
-    after a fault that stopped the torch on the part, dry runs otherwise (0: never)."""
-    unknown = [name for name in faults if name not in FAULTS]
-    if unknown:
-        raise ValueError(f"unknown fault kinds {unknown}; choose from {sorted(FAULTS)}")
-    plan: list[PlannedJob] = []
-    rerun = False
-    seen: collections.Counter[str] = collections.Counter()
-    for i in range(1, n_jobs + 1):
-        if fault_every and faults and i % fault_every == 0:
-            f = FAULTS[faults[sum(seen.values()) % len(faults)]]
-            plan.append(PlannedJob(i, f.name, f.weld, f, seen[f.name]))
-            seen[f.name] += 1
-            rerun = f.when == "arc_on"
-        elif rerun or (weld_every and i % weld_every == 0):
-            plan.append(PlannedJob(i, "weld", True))
-            rerun = False
-        else:
-            plan.append(PlannedJob(i, "dry", False))
-    return plan
-
-
-# ================================================================================================ TOML files
-def toml_dumps(data: dict[str, Any]) -> str:
-    """TOML text of ``data`` (tables of scalars, lists, nested tables; arrays of tables). Comments are not kept."""
-
-    def key(k: str) -> str:
-        return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
-
-    def value(v: Any) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, int):
-            return str(v)
-        if isinstance(v, float):
-            if math.isnan(v):
-                return "nan"
-            return ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
-        if isinstance(v, str):
-            return json.dumps(v)
-        if isinstance(v, list):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        if isinstance(v, dict):
-            return "{" + ", ".join(f"{key(k)} = {value(x)}" for k, x in v.items()) + "}"
-        raise TypeError(f"cannot write {type(v).__name__} as TOML")
-
-    def is_table_array(v: Any) -> bool:
-        return isinstance(v, list) and bool(v) and all(isinstance(x, dict) for x in v)
-
-    lines: list[str] = []
-
-    def table(path: list[str], body: dict[str, Any], header: str | None) -> None:
-        if header is not None:
-            lines.extend(["", header])
-        for k, v in body.items():
-            if not isinstance(v, dict) and not is_table_array(v):
-                lines.append(f"{key(k)} = {value(v)}")
-        for k, v in body.items():
-            if isinstance(v, dict):
-                name = ".".join(key(p) for p in [*path, k])
-                table([*path, k], v, f"[{name}]")
-        for k, v in body.items():
-            if is_table_array(v):
-                name = ".".join(key(p) for p in [*path, k])
-                for item in v:
-                    lines.extend(["", f"[[{name}]]"])
-                    lines.extend(f"{key(ik)} = {value(iv)}" for ik, iv in item.items())
-
-    table([], data, None)
-    return "\n".join(lines).lstrip("\n") + "\n"
-
-
-def soak_config(config_path: Path, workdir: Path) -> tuple[Path, dict[str, Any]]:
-    """A copy of the cell config in ``workdir``: the fakes on free ports (the fake UR keeps its fixed ones), journal
-    and status image in ``workdir``, the file paths it names made absolute. Returns (path, its data)."""
-    data = tomllib.loads(config_path.read_text(encoding="utf-8"))
-    base = config_path.resolve().parent
-    robot, track = data.setdefault("robot", {}), data.setdefault("track", {})
-    if robot.get("kind") == "fake-fanuc":
-        robot["port"] = 0
-    if track.get("kind") == "fake":
-        track["port"] = 0
-    camera = data.get("camera", {})
-    if camera.get("playback"):
-        camera["playback"] = [str((base / p).resolve()) for p in camera["playback"]]
-    hand_eye = data.get("hand_eye", {})
-    if isinstance(hand_eye.get("path"), str):
-        hand_eye["path"] = str((base / hand_eye["path"]).resolve())
-    daemon = data.setdefault("daemon", {})
-    daemon["journal"] = str(workdir / "journal.sqlite3")
-    daemon["status_image"] = str(workdir / "status.png")
-    path = workdir / "cell.toml"
-    path.write_text(f"# soak copy of {config_path}\n" + toml_dumps(data), encoding="utf-8")
-    return path, data
-
-
-def job_variant(job: dict[str, Any], planned: PlannedJob) -> str:
-    """The TOML of ``planned``: the job renamed ``soak-NNN-<kind>-<workpiece>``; for ``unreachable_pose`` its first
-    capture pose 3 m away; for ``malformed`` an unknown key or broken TOML (by turns)."""
-    data = json.loads(json.dumps(job))  # a deep copy
-    data["workpiece"] = f"soak-{planned.index:03d}-{planned.kind}-{job.get('workpiece', 'job')}"
-    if planned.kind == "unreachable_pose":
-        capture = data["capture"][0]
-        if "xyzwpr_mm_deg" in capture:
-            capture["xyzwpr_mm_deg"] = [0.0, 3000.0, 400.0, *capture["xyzwpr_mm_deg"][3:]]
-        else:
-            capture["xyz_m"] = [0.0, 3.0, 0.4]
-    text = toml_dumps(data)
-    if planned.kind == "malformed":
-        if planned.occurrence % 2:
-            return text[: len(text) // 2] + "\n[[capture]\n"  # a torn upload
-        return text + "\n[welding_parameters]\ncurrent_a = 180\n"  # a table no job file has
-    return text
-
-
-# ================================================================================================ the daemon
-class ServedDaemon:
-    """``weldcell serve --config CONFIG --port 0 --sim-faults`` as a child process; its output goes to ``log``."""
-
-    def __init__(self, config: Path, log: Path) -> None:
-        exe = Path(sys.executable).with_name("weldcell")
-        cmd = [str(exe)] if exe.is_file() else [sys.executable, "-m", "cell.cli"]
-        self.cmd = [*cmd, "serve", "--config", str(config), "--port", "0", "--sim-faults"]
-        self.log = log.open("w", encoding="utf-8")
-        self.proc = subprocess.Popen(
-            self.cmd,
-            cwd=REPO,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        self.lines: list[str] = []
-        self._new_line = threading.Condition()
-        self._reader = threading.Thread(target=self._read, name="soak-daemon-output", daemon=True)
-        self._reader.start()
-
-    @property
-    def pid(self) -> int:
-        return self.proc.pid
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.log.write(line)
-            self.log.flush()
-            with self._new_line:
-                self.lines.append(line.rstrip("\n"))
-                self._new_line.notify_all()
-        with self._new_line:
-            self._new_line.notify_all()
-
-    def wait_line(self, pattern: str, timeout_s: float) -> re.Match[str]:
-        """The first output line matching ``pattern`` (a regex), waiting up to ``timeout_s``."""
-        deadline = time.monotonic() + timeout_s
-        seen = 0
-        with self._new_line:
-            while True:
-                for line in self.lines[seen:]:
-                    found = re.search(pattern, line)
-                    if found:
-                        return found
-                seen = len(self.lines)
-                left = deadline - time.monotonic()
-                if left <= 0 or (self.proc.poll() is not None and not self._reader.is_alive()):
-                    tail = "\n".join(self.lines[-15:])
-                    raise RuntimeError(f"the daemon printed no {pattern!r} within {timeout_s:.0f} s:\n{tail}")
-                self._new_line.wait(min(left, 0.5))
-
-    def proc_status(self) -> tuple[float, int]:
-        """(resident memory MiB, threads) of the daemon now, from /proc/PID/status."""
-        fields = {}
-        for line in Path(f"/proc/{self.pid}/status").read_text().splitlines():
-            name, _, rest = line.partition(":")
-            fields[name] = rest.split()
-        return int(fields["VmRSS"][0]) / 1024.0, int(fields["Threads"][0])
-
-    def stop(self, timeout_s: float = 60.0) -> int:
-        """SIGTERM, then wait for the exit code (SIGKILL after ``timeout_s``: then the code is negative)."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=10)
-        self._reader.join(timeout=5)
-        return int(self.proc.returncode)
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(timeout=10)
-        self._reader.join(timeout=5)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
-        self.log.close()
-
-
-class Client:
-    """JSON over HTTP to the daemon at ``base`` (with its bearer ``token`` if it has one)."""
-
-    def __init__(self, base: str, token: str | None = None) -> None:
-        self.base = base
-        self.headers = {"Authorization": f"Bearer {token}"} if token else {}
-
-    def call(
-        self,
-        method: str,
-        path: str,
-        body: bytes | None = None,
-        content_type: str = "application/json",
-        extra_headers: dict[str, str] | None = None,
-    ) -> Any:
-        """(status, decoded JSON body)."""
-        headers = {**self.headers, **(extra_headers or {})}
-        if body is not None:
-            headers["Content-Type"] = content_type
-        req = urllib.request.Request(self.base + path, data=body, method=method, headers=headers)
-        try:
-            with urllib.request.urlopen(req, timeout=30) as resp:
-                status, data = resp.status, resp.read()
-        except urllib.error.HTTPError as err:
-            status, data = err.code, err.read()
-        return status, (json.loads(data) if data[:1] in (b"{", b"[") else data.decode())
-
-    def get(self, path: str) -> Any:
-        status, answer = self.call("GET", path)
-        if status != 200:
-            raise RuntimeError(f"GET {path}: {status} {answer}")
-        return answer
-
-    def post(self, path: str, obj: Any) -> tuple[int, Any]:
-        status, answer = self.call("POST", path, json.dumps(obj).encode())
-        return int(status), answer
 
 
 # ================================================================================================ the soak
@@ -900,63 +613,6 @@ def print_summary(result: SoakResult, out: TextIO = sys.stdout) -> None:
     p(f"  failures: {len(result.failures)}")
     for f in result.failures:
         p(f"    - {f}")
-
-
-# ================================================================================================ in-process
-def rss_mb() -> float:
-    """Resident set size of this process now, MiB (Linux /proc; 0 elsewhere)."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return 0.0
-
-
-def run_in_process_soak(config_path: str, job_path: str, *, jobs: int, weld: bool, every: int) -> int:
-    """The earlier soak: ``jobs`` dry runs (or welds) through one JobRunner in this process."""
-    from cell.config import load_config
-    from cell.factory import build_cell
-    from cell.job import load_job
-    from cell.journal import Journal
-    from cell.runner import JobRunner
-
-    config = load_config(config_path)
-    job = load_job(job_path)
-    outcomes: collections.Counter[str] = collections.Counter()
-    failures = 0
-    with (
-        tempfile.TemporaryDirectory() as tmp,
-        Journal(Path(tmp) / "soak.sqlite3") as journal,
-        build_cell(config, start_simulators=True) as cell,
-    ):
-        cell.connect()
-        runner = JobRunner(cell, journal=journal)
-        cell.robot.move_linear(runner.capture_pose(job, 0), speed_m_s=config.robot.speed_m_s)
-        t0 = time.monotonic()
-        rss0 = 0.0
-        for n in range(1, jobs + 1):
-            report = runner.run(job, dry_run=not weld)
-            outcomes[report.outcome] += 1
-            expected = "welded" if weld else "dry_run"
-            if report.outcome != expected:
-                failures += 1
-                print(f"job {n}: {report.outcome}: {report.reason}", flush=True)
-                if report.state == "fault":
-                    runner.acknowledge("soak")
-            if n == 1:
-                rss0 = rss_mb()
-            if n % every == 0 or n == jobs:
-                rss = rss_mb()
-                print(
-                    f"{n:4d} jobs  {time.monotonic() - t0:7.1f} s  rss {rss:7.1f} MiB "
-                    f"(+{rss - rss0:5.1f} since job 1)"
-                    f"  threads {threading.active_count():3d}  {dict(outcomes)}",
-                    flush=True,
-                )
-        print(f"journal: {len(journal.recent_jobs(jobs + 1))} jobs recorded; failures: {failures}")
-    return 1 if failures else 0
 
 
 # ================================================================================================ main
