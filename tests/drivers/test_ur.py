@@ -1,4 +1,4 @@
-"""URRobot (drivers/ur.py) against the fake UR controller (sim_fakes/fake_ur.py) through the real ur-rtde client.
+"""URRobot (drivers/ur.py) against the fake UR controller (sim_fakes/fake_ur/) through the real ur-rtde client.
 
 One fake per module on a free loopback address of this session, returned to its initial state before each test;
 a fresh driver per test.
