@@ -29,6 +29,15 @@ def fake():
         yield controller
 
 
+def exited(pid: int) -> bool:
+    """The process has exited (a zombie nobody has reaped yet counts: an orphan waits for init to reap it)."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] in ("Z", "X")
+    except FileNotFoundError:
+        return True
+
+
 def _wait_arc_off(fake: FakeFanucController, t_from: float, limit_s: float = 3.0) -> float:
     while time.monotonic() - t_from < limit_s:
         if not fake.digital_output(ARC_PORT):
@@ -108,6 +117,7 @@ def test_a_killed_host_process_stops_the_motion_and_the_arc_within_one_second(fa
             robot.set_digital_output(0, True)
             X = robot.get_X_base_tool()
             X[0, 3] += 0.3
+            print(robot._worker.proc.pid, flush=True)  # the driver's I/O process
             print("moving", flush=True)
             robot.move_linear(X, speed_m_s=0.05, timeout_s=30)
         """
@@ -117,6 +127,7 @@ def test_a_killed_host_process_stops_the_motion_and_the_arc_within_one_second(fa
     )
     try:
         assert proc.stdout is not None
+        worker_pid = int(proc.stdout.readline())
         assert proc.stdout.readline().strip() == b"moving"
         time.sleep(0.5)
         x_before = fake.xyzwpr_mm_deg()[0]
@@ -124,6 +135,7 @@ def test_a_killed_host_process_stops_the_motion_and_the_arc_within_one_second(fa
         t_kill = time.monotonic()
         os.kill(proc.pid, signal.SIGKILL)
         assert _wait_arc_off(fake, t_kill) < 1.0
+        assert exited(worker_pid)  # the I/O process (and its heartbeat) went with the host
         x_stop = fake.xyzwpr_mm_deg()[0]
         time.sleep(0.5)
         assert fake.xyzwpr_mm_deg()[0] == pytest.approx(x_stop, abs=0.01)  # stopped
