@@ -84,7 +84,7 @@ def test_a_dropped_link_switches_the_arc_off_within_the_timeout(fake) -> None:
         events = fake.events()
         trip = next(e for e in events if e["kind"] == "heartbeat_lost")
         dropped = next(e for e in events if e["kind"] == "fault")
-        assert TIMEOUT_S < trip["silent_s"] < TIMEOUT_S + 0.1
+        assert TIMEOUT_S <= trip["silent_s"] < TIMEOUT_S + 0.1  # (rounded to 0.1 ms by the fake)
         assert trip["t"] - dropped["t"] < TIMEOUT_S + 0.1  # the last beat came at most one period before the drop
     finally:
         fake.clear_faults()
