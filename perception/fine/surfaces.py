@@ -226,19 +226,12 @@ def _shift(a: NDArray, dy: int, dx: int, fill: int | float) -> NDArray:
     return out
 
 
-def segment_surfaces(
-    points: NDArray[np.floating],
-    planes: LocalPlanes,
-    noise: NoiseModel,
-    *,
-    factor: int,
-    params: SurfaceParams | None = None,
-) -> SurfaceSet:
-    """Planes and cylinders of an (h, w, 3) work-resolution organized cloud (camera frame, NaN invalid)."""
+def _components(p: FloatArray, planes: LocalPlanes, noise: NoiseModel,
+                sp: SurfaceParams) -> tuple[NDArray[np.int32], NDArray[np.int64]]:  # fmt: skip
+    """(h, w) connected-component labels (-1: none) of the smooth pixels, cut at folds and depth jumps, and
+    each component's pixel count."""
     import cv2
 
-    sp = params or SurfaceParams()
-    p = np.asarray(points, dtype=np.float64)
     z = p[..., 2]
     valid = np.isfinite(z)
     zz = np.where(valid, z, 1.0)
@@ -271,6 +264,24 @@ def segment_surfaces(
     comp = comp_big[::2, ::2].astype(np.int32) - 1  # background (0) -> -1
     comp[~ok_px] = -1
     counts = np.bincount(comp[comp >= 0].ravel(), minlength=max(n_comp - 1, 0))
+    return comp, counts
+
+
+def segment_surfaces(
+    points: NDArray[np.floating],
+    planes: LocalPlanes,
+    noise: NoiseModel,
+    *,
+    factor: int,
+    params: SurfaceParams | None = None,
+) -> SurfaceSet:
+    """Planes and cylinders of an (h, w, 3) work-resolution organized cloud (camera frame, NaN invalid)."""
+    sp = params or SurfaceParams()
+    p = np.asarray(points, dtype=np.float64)
+    z = p[..., 2]
+    sigma = noise.sigma_m(np.where(np.isfinite(z), z, 1.0))
+    w = z.shape[1]
+    comp, counts = _components(p, planes, noise, sp)
 
     surfaces: list[Surface] = []
     labels = np.full(z.shape, -1, np.int32)
@@ -326,19 +337,28 @@ def segment_surfaces(
             lab = len(surfaces)
             surfaces.append(Surface(lab, "plane", nrm, d, rms, len(sub), q[sub].mean(axis=0), zc))
             labels.reshape(-1)[idx[sub]] = lab
+    labels, surfaces = _complete(p, labels, surfaces, planes.normal, sigma, noise, sp)
+    return SurfaceSet(labels, factor, tuple(surfaces))
+
+
+def _complete(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], normals: FloatArray,
+              sigma: FloatArray, noise: NoiseModel,
+              sp: SurfaceParams) -> tuple[NDArray[np.int32], list[Surface]]:  # fmt: skip
+    """The surfaces grown into the corner bands, narrow faces recovered, coplanar pieces and a pipe's strips
+    merged."""
     labels = _grow(p, labels, surfaces, sigma, sp)
     # narrow faces (a bevel, a lap plate's edge, seen a few pixels wide) lose their middle to the fold cuts
     # of both their edges; what is left between the grown surfaces is fitted again on its own
     n_before = len(surfaces)
-    labels = _recover_narrow(p, labels, surfaces, sigma, noise, sp, planes.normal)
+    labels = _recover_narrow(p, labels, surfaces, sigma, noise, sp, normals)
     if len(surfaces) > n_before:
         labels = _grow(p, labels, surfaces, sigma, sp)
     labels, surfaces = _merge_coplanar(p, labels, surfaces, noise, sp)
     n_before = len(surfaces)
-    labels, surfaces = _merge_cylinders(p, labels, surfaces, planes.normal, sigma, noise, sp)
+    labels, surfaces = _merge_cylinders(p, labels, surfaces, normals, sigma, noise, sp)
     if len(surfaces) < n_before:
         labels = _grow(p, labels, surfaces, sigma, sp)
-    return SurfaceSet(labels, factor, tuple(surfaces))
+    return labels, surfaces
 
 
 def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: int, zc: float, spacing: float,
@@ -513,7 +533,22 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
         lab.reshape(-1)[idx] = -1
         lab.reshape(-1)[idx[found[1]]] = found[0].label
         gone.update(members)
-    # pieces of one pipe (strips on either side of a highlight or a cap's rim) share its axis and radius
+    _merge_coaxial(p, lab, new_surfaces, gone, normals, sigma, noise, sp)
+    if not gone:
+        return labels, surfaces
+    keep = [s for s in new_surfaces if s.label not in gone]
+    remap = np.full(len(new_surfaces) + 1, -1, np.int32)
+    for k, s in enumerate(keep):
+        remap[s.label] = k
+    return remap[lab], [replace(s, label=k) for k, s in enumerate(keep)]
+
+
+def _merge_coaxial(p: FloatArray, lab: NDArray[np.int32], surfaces: list[Surface], gone: set[int],
+                   normals: FloatArray, sigma: FloatArray, noise: NoiseModel, sp: SurfaceParams) -> None:  # fmt: skip
+    """Cylinder pieces of one pipe (strips on either side of a highlight or a cap's rim) become one: the larger
+    piece's cylinder runs through the smaller one within the noise. Appends to ``surfaces``, relabels ``lab``
+    and adds the merged pieces to ``gone``, in place."""
+    new_surfaces = surfaces
     cyl_ids = [s.label for s in new_surfaces if s.kind == "cylinder" and s.label not in gone]
     for i, a in enumerate(cyl_ids):
         for b in cyl_ids[i + 1 :]:
@@ -541,13 +576,6 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
             lab.reshape(-1)[idx[found[1]]] = found[0].label
             gone.update((a, b))
             cyl_ids.append(found[0].label)
-    if not gone:
-        return labels, surfaces
-    keep = [s for s in new_surfaces if s.label not in gone]
-    remap = np.full(len(new_surfaces) + 1, -1, np.int32)
-    for k, s in enumerate(keep):
-        remap[s.label] = k
-    return remap[lab], [replace(s, label=k) for k, s in enumerate(keep)]
 
 
 def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], noise: NoiseModel,
