@@ -1,32 +1,38 @@
-"""``weldcell serve``: the cell as a small HTTP service (FastAPI on uvicorn, :mod:`cell.http_api`), running jobs
-one at a time.
+"""``weldcell serve``: the cell as a small HTTP service, running jobs one at a time.
+
+This module is the service itself: the job queue and its worker, approvals, the operator commands (acknowledge,
+pause, resume, abort), the status the page and clients read, and a safe shutdown. Around it, each in a module of
+its own: the HTTP layer and its guards (:mod:`cell.http_api`), the operator page (:mod:`cell.operator_page`, what it
+shows: :mod:`cell.operator_view`, :mod:`cell.fault_text`), the metrics (:mod:`cell.metrics`), the test-only fault
+switches (:mod:`cell.sim_fault_api`), the exports of finished jobs (:mod:`cell.job_exports`) and the allocator tuning
+(:mod:`cell.memory`).
 
 Endpoints (JSON unless said otherwise; ``GET /openapi.json`` describes them; with ``[daemon] token`` every request
-needs ``Authorization: Bearer <token>``, and the config refuses a non-loopback ``host`` without a token; Host,
-Origin, size and time checks in :mod:`cell.http_api`)::
+but the page's own HTML needs ``Authorization: Bearer <token>``, and the config refuses a non-loopback ``host``
+without a token; Host, Origin, size and time checks in :mod:`cell.http_api`)::
 
     POST /jobs                   body: a job's TOML text, or JSON {"path": "job.toml"} (in the jobs directory) or
                                  {"toml": "..."}; checked against the cell's limits before it is queued;
                                  ?dry_run=1 (or "dry_run": true) plans and validates only -> 201 {"id", "state"}
     GET  /jobs                   the recent jobs, newest first
     GET  /jobs/{id}              one job: state, report, error and its journaled events
+    GET  /jobs/{id}/export/{fmt} a finished job's seams and path as urscript, ls, rosbag2 (zip), gltf or html
     POST /jobs/{id}/approve      {"operator": "name"}: approve the planned path of a job awaiting approval
     POST /jobs/{id}/reject       {"operator": "name"}: refuse it (the job ends cancelled, nothing moves)
     POST /acknowledge            {"operator": "name"}: leave fault (latched device faults are cleared)
     POST /pause, /resume, /abort {"operator": "name"}: pause (motion stopped, arc off), resume where it stopped,
                                  or give the paused job up (the torch retracts, the job ends cancelled)
-    GET  /status                 {"state", "fault_reason", "current_job", "queued", "recent_jobs", "interrupted"}
-    GET  /                       a small HTML status page with the overlay of the last capture
-    GET  /status.png             that overlay (PNG)
+    GET  /status                 {"state", "fault_reason", "fault", "last_fault", "current_job" (with its
+                                 progress), "queued", "recent_jobs", "interrupted", "devices", "overlay", ...}
+    GET  /                       the operator page (docs/operator-page.md)
+    GET  /status.png             the overlay of the last capture (PNG)
     GET  /metrics                Prometheus text format
 
-Test only, with ``weldcell serve --sim-faults`` (``Daemon(sim_faults=True)``), which is refused unless every device
-is a simulator this daemon started itself (:meth:`cell.factory.Cell.fault_injectors`)::
+Test only, with ``weldcell serve --sim-faults`` (``Daemon(sim_faults=True)``; :mod:`cell.sim_fault_api`), which is
+refused unless every device is a simulator this daemon started itself::
 
     GET  /sim/faults             the simulated devices, the faults each supports and the faults injected
-    POST /sim/faults             {"device": "robot" | "track" | "camera", "fault": "...", "params": {...}}: switch a
-                                 fault of that simulator on (``sim_fakes.faults``): a soak or a test plays the
-                                 broken device, the cell reacts as it would to the real one
+    POST /sim/faults             {"device": "robot" | "track" | "camera", "fault": "...", "params": {...}}
     POST /sim/faults/clear       {"device": ...} or {}: switch that simulator's (every simulator's) faults off; a
                                  latched stop or drive fault stays latched until POST /acknowledge clears it
 
@@ -39,12 +45,16 @@ motion before an operator's acknowledgement. :meth:`Daemon.shutdown` (SIGTERM, C
 switches the arc off through the state machine's ``fault_now`` before anything else, cancels the queued jobs,
 then closes the devices and the journal; the arc output is then switched off once more and read back
 (:attr:`Daemon.arc_on_at_exit`).
+
+Pause and resume: a pause stops the robot and the track where they are and switches the arc off at once (the
+state machine's ``request_pause``: the arm stands still, the arc is off, the job waits in ``paused``). Resume goes
+back to the paused state; a seam paused while welding is welded on from the last travel pose the robot reached
+(the torch comes down onto that pose from above along its own axis, the arc comes on there), the seams before it
+stay welded and the ones after follow. Abort (from ``paused``) retracts the torch and ends the job cancelled.
 """
 
 from __future__ import annotations
 
-import html
-import json
 import logging
 import queue
 import re
@@ -58,16 +68,25 @@ from typing import Any
 from cell.config import CellConfig
 from cell.errors import ConfigError, WeldcellError
 from cell.factory import Cell, build_cell, real_devices
+from cell.fault_text import explain_fault
 from cell.http_api import HttpServer, build_app, listen
 from cell.job import FileRules, Job, job_from_text, load_job
+from cell.job_exports import Exported, export_job, save_job_result
+from cell.job_report import CYCLE_PHASES, JobReport
 from cell.journal import JobRecord, Journal
 from cell.machine import PAUSABLE, CellState
+from cell.memory import limit_malloc_arenas, release_freed_memory
+from cell.metrics import CellMetrics, DaemonSnapshot
+from cell.operator_view import devices_view, job_view, overlay_view, progress_view
 from cell.planning import WeldPath
-from cell.runner import CYCLE_PHASES, CellBusy, JobReport, JobRunner
+from cell.request_parsing import body_text, parse_flag, parse_json_object
+from cell.runner import CellBusy, JobRunner
+from cell.sim_fault_api import SimFaultSwitch
 
 logger = logging.getLogger(__name__)
 
 ACTIVE_STATES = frozenset(CellState) - {CellState.IDLE, CellState.DONE, CellState.FAULT}
+FINAL_JOB_STATES = ("done", "failed", "cancelled", "dry_run", "interrupted")
 
 
 @dataclass(frozen=True)
@@ -101,34 +120,30 @@ class Daemon:
         sim_faults: bool = False,
     ) -> None:
         if sim_faults:  # refused before anything is opened or connected
-            real = real_devices(config)
-            if real:
-                raise ConfigError(
-                    f"{config.source or 'the config'}: --sim-faults is for simulated cells only, and "
-                    f"{', '.join(real)} is real hardware"
-                )
-            if cell is None and not start_simulators:
-                raise ConfigError(
-                    "--sim-faults needs the simulators this daemon starts: it cannot be combined with --no-sims"
-                )
+            _check_sim_faults_allowed(config, own_simulators=cell is not None or start_simulators)
         self.config = config
         dc = config.daemon
         self.journal = Journal(config.resolve(dc.journal))
         self.interrupted: tuple[JobRecord, ...] = self.journal.interrupted
         self.submitted_dir = (self.journal.path.parent / "jobs").resolve()  # copies of the jobs sent as text
+        self.results_dir = (self.journal.path.parent / "results").resolve()  # what each job's exports need
         self.jobs_dir = config.resolve(dc.jobs_dir).resolve() if dc.jobs_dir is not None else self.submitted_dir
         self.captures_dir = (
             config.resolve(dc.captures_dir) if dc.captures_dir is not None else self.journal.path.parent / "captures"
         ).resolve()
         self.status_image = config.resolve(dc.status_image)
         self._own_cell = cell is None
+        self.sim: SimFaultSwitch | None = None
         try:
             self.cell = cell if cell is not None else build_cell(config, start_simulators=start_simulators)
             if self._own_cell:
                 self.cell.connect()
             self.runner = JobRunner(self.cell, journal=self.journal, status_image=self.status_image)
             self.runner.switch_arc_off()  # the previous process may have died with the arc on
-            self._fault_injectors: dict[str, Any] | None = self.cell.fault_injectors() if sim_faults else None
+            if sim_faults:
+                self.sim = SimFaultSwitch(
+                    self.cell.fault_injectors(), note=self._journal_note, arc_output=lambda: self.runner.arc_output
+                )
         except BaseException:
             if self._own_cell and cell is None and hasattr(self, "cell"):
                 self.cell.close()
@@ -143,10 +158,15 @@ class Daemon:
         self._totals = {"seams_welded": 0, "poses_sent": 0, "arc_time_s": 0.0}
         self._outcomes: dict[str, int] = {}
         self._last_cycle: dict[str, float] = {}
-        self._injected: dict[str, list[dict[str, Any]]] = {}
+        self._last_fault: dict[str, Any] | None = None
+        self.metrics_registry = CellMetrics(snapshot=self._snapshot)
         self.arc_on_at_exit: bool | None = None
         """After :meth:`shutdown`: whether the arc output read on (None: it could not be read back)."""
         self._worker = threading.Thread(target=self._work, name="weldcell-jobs", daemon=True)
+        self._serve(dc)
+        self._report_previous_run()
+
+    def _serve(self, dc: Any) -> None:
         try:
             sock = listen(dc.host, dc.port)
         except OSError:
@@ -157,6 +177,8 @@ class Daemon:
         self._address = sock.getsockname()[:2]
         self.app = build_app(self, int(self._address[1]))
         self.http = HttpServer(self.app, sock, timeout_s=dc.request_timeout_s, max_connections=dc.max_connections)
+
+    def _report_previous_run(self) -> None:
         for record in self.interrupted:
             logger.warning(
                 "job %d (%s) was interrupted by the previous daemon: not resumed", record.id, record.job_file
@@ -167,15 +189,20 @@ class Daemon:
                 f"unclean stop: job {', '.join(map(str, unclean))} was running when the previous daemon stopped; "
                 "check the torch and the part, then acknowledge (POST /acknowledge)"
             )
-        if self._fault_injectors is not None:
+        if self.sim is not None:
             logger.warning(
-                "test-only fault injection is on (/sim/faults) for the simulated %s", ", ".join(self._fault_injectors)
+                "test-only fault injection is on (/sim/faults) for the simulated %s", ", ".join(self.sim.injectors)
             )
 
     @property
     def address(self) -> tuple[str, int]:
         host, port = self._address
         return str(host), int(port)
+
+    @property
+    def sim_faults(self) -> bool:
+        """Whether the test-only ``/sim/faults`` endpoints are served."""
+        return self.sim is not None
 
     def start(self) -> Daemon:
         limit_malloc_arenas()  # before the worker and HTTP threads exist
@@ -211,10 +238,7 @@ class Daemon:
         (:attr:`jobs_dir` for job files, it, :attr:`captures_dir` or :attr:`submitted_dir` for prompts files); a
         job sent as text is kept in :attr:`submitted_dir` (``jobs`` next to the journal), never in jobs_dir."""
         dry_run = parse_flag(dry_run_query, "?dry_run") if dry_run_query is not None else False
-        try:
-            text = body.decode("utf-8")
-        except UnicodeDecodeError as err:
-            raise ConfigError("the request body is not UTF-8 text") from err
+        text = body_text(body)
         roots = tuple(dict.fromkeys((self.jobs_dir, self.captures_dir, self.submitted_dir)))
         rules = FileRules(roots, self.config.daemon.max_file_bytes)
         if "json" in content_type.lower():
@@ -266,6 +290,7 @@ class Daemon:
                     item.job, job_id=item.job_id, dry_run=item.dry_run, approve=self._wait_approval
                 )
                 self._count(report)
+                self._keep_result(item.job_id)
             except WeldcellError as err:
                 logger.error("job %d could not run: %s", item.job_id, err)
                 self.journal.record_state_change(
@@ -288,6 +313,16 @@ class Daemon:
             self._totals["poses_sent"] += report.poses_sent
             self._totals["arc_time_s"] += report.arc_time_s
             self._last_cycle = dict(report.cycle_s)
+        self.metrics_registry.observe_job(report.cycle_s.get("total", 0.0), report.outcome)
+
+    def _keep_result(self, job_id: int) -> None:
+        data = self.runner.current
+        if data is None or data.job_id != job_id:
+            return
+        try:
+            save_job_result(self.results_dir / str(job_id), data)
+        except Exception:  # the exports are a convenience: the job's outcome stands
+            logger.exception("job %d: cannot keep its result for the exports", job_id)
 
     def _wait_approval(self, path: WeldPath) -> str | None:
         current = self._current
@@ -314,117 +349,140 @@ class Daemon:
         approval.event.set()
         return True
 
-    # ------------------------------------------------------------------------------------------ test faults
-    @property
-    def sim_faults(self) -> bool:
-        """Whether the test-only ``/sim/faults`` endpoints are served."""
-        return self._fault_injectors is not None
-
-    def sim_fault_view(self) -> dict[str, Any]:
-        """The simulated devices: the faults each supports and those injected since they were last cleared."""
-        injectors = self._fault_injectors or {}
-        with self._lock:
-            injected = {role: list(faults) for role, faults in self._injected.items()}
-        return {
-            "devices": {
-                role: {"supported": sorted(handle.supported_faults), "injected": injected.get(role, [])}
-                for role, handle in injectors.items()
-            },
-            "arc_output_on": self._simulated_arc_on(injectors.get("robot")),
-        }
-
-    def _simulated_arc_on(self, robot: Any) -> bool | None:
-        """The arc output as the simulated controller itself holds it (not as the driver reports it): what an
-        independent reader of the controller's outputs sees. None: unknown."""
-        index = self.runner.arc_output
-        try:
-            if hasattr(robot, "digital_output"):  # the fake FANUC: DO[index + 1]
-                return bool(robot.digital_output(index + 1))
-            if hasattr(robot, "snapshot"):  # the fake UR, through its process's control pipe
-                return bool(robot.snapshot()["digital_outputs"][index])
-        except (RuntimeError, TimeoutError, OSError, ValueError, IndexError, KeyError):
-            return None
-        return None
-
-    def inject_sim_fault(self, device: str, fault: str, params: dict[str, Any]) -> None:
-        """Switch ``fault`` of the simulated ``device`` on. ConfigError for an unknown device, fault or parameter."""
-        handle = self._sim_device(device)
-        try:
-            handle.inject(fault, **params)
-        except (ValueError, TypeError) as err:
-            raise ConfigError(f"simulated {device}: {err}") from err
-        except (RuntimeError, TimeoutError, OSError) as err:  # a fake (the UR's own process) that does not answer
-            raise WeldcellError(f"the simulated {device} did not take the fault: {err}") from err
-        with self._lock:
-            self._injected.setdefault(device, []).append({"fault": fault, "params": params})
-        self._journal_sim_fault(f"test fault injected into the simulated {device}: {fault} {json.dumps(params)}")
-
-    def clear_sim_faults(self, device: str | None = None) -> list[str]:
-        """Switch the faults of the simulated ``device`` (None: every one) off; returns the devices cleared."""
-        roles = [device] if device is not None else sorted(self._fault_injectors or {})
-        handles = [(role, self._sim_device(role)) for role in roles]
-        for role, handle in handles:
-            try:
-                handle.clear_faults()
-            except (RuntimeError, TimeoutError, OSError) as err:
-                raise WeldcellError(f"the simulated {role} did not clear its faults: {err}") from err
-            with self._lock:
-                self._injected.pop(role, None)
-        self._journal_sim_fault(f"test faults cleared in the simulated {', '.join(roles)}")
-        return roles
-
-    def _sim_device(self, device: str) -> Any:
-        injectors = self._fault_injectors
-        if injectors is None:  # the routes check first; this guards direct calls
-            raise ConfigError("fault injection is off (weldcell serve --sim-faults, simulated cells only)")
-        if device not in injectors:
-            raise ConfigError(f"no simulated device {device!r}; choose one of {sorted(injectors)}")
-        return injectors[device]
-
-    def _journal_sim_fault(self, text: str) -> None:
-        logger.warning("%s", text)
-        state = self.runner.machine.state.value
-        self.journal.record_state_change(self.runner.machine.job_id, state, state, text)
-
     # ------------------------------------------------------------------------------------------ views
     def status(self) -> dict[str, Any]:
+        """GET /status: the cell's state and fault, the current job and its progress, the queue, the recent and
+        interrupted jobs, the devices and the arc, and the seams of the capture being welded."""
         m = self.runner.machine
+        state = m.state
         with self._lock:
             current = self._current
             queued = sorted(self._queued)
             awaiting = self._approval.job_id if self._approval is not None else None
+            last_fault = dict(self._last_fault) if self._last_fault is not None else None
+        data = self.runner.current
+        ours = data if data is not None and current is not None and data.job_id == current.job_id else None
         current_view = None
         if current is not None:
-            data = self.runner.current
             current_view = {
                 "id": current.job_id,
                 "workpiece": current.job.workpiece,
                 "dry_run": current.dry_run,
                 "awaiting_approval": awaiting == current.job_id,
-                "seams_welded": data.seams_welded if data is not None and data.job_id == current.job_id else 0,
+                "seams_welded": ours.seams_welded if ours is not None else 0,
+                "progress": progress_view(ours, state) if ours is not None else {"phase": state.value},
             }
+        fault_reason = m.fault_reason if state is CellState.FAULT else None
+        fault = explain_fault(fault_reason)
+        if fault is not None:
+            last_fault = {"reason": fault_reason, **fault.to_dict(), "acknowledged_by": None}
         return {
-            "state": m.state.value,
-            "fault_reason": m.fault_reason if m.state is CellState.FAULT else None,
+            "state": state.value,
+            "fault_reason": fault_reason,
+            "fault": fault.to_dict() if fault is not None else None,
+            "last_fault": last_fault,
             "current_job": current_view,
             "queued": queued,
-            "recent_jobs": [_job_view(r) for r in self.journal.recent_jobs(self.config.daemon.recent_jobs)],
-            "interrupted": [_job_view(r) for r in self.interrupted],
-            "sim_faults": self._fault_injectors is not None,
+            "recent_jobs": [job_view(r) for r in self.journal.recent_jobs(self.config.daemon.recent_jobs)],
+            "interrupted": [job_view(r) for r in self.interrupted],
+            "sim_faults": self.sim is not None,
+            "devices": self.devices(),
+            "overlay": self._overlay(state),
+            "token_required": self.config.daemon.token is not None,
         }
 
-    def jobs_view(self) -> dict[str, Any]:
-        return {"jobs": [_job_view(r) for r in self.journal.recent_jobs(self.config.daemon.recent_jobs)]}
+    def devices(self) -> dict[str, Any]:
+        """The robot, the track, the camera and the arc output (readings at most 0.5 s old)."""
+        try:
+            readings = self.runner.watchdog.read()
+        except Exception:  # a driver bug must not take the status page down
+            logger.exception("cannot read the devices for the status")
+            readings = None
+        track = self.cell.track
+        return devices_view(
+            readings,
+            robot=self.cell.robot.name,
+            track=track.name if track is not None else None,
+            camera=getattr(self.cell.camera, "name", self.config.camera.kind),
+            arc_output=self.runner.arc_output,
+        )
 
+    def _overlay(self, state: CellState) -> dict[str, Any] | None:
+        if not self.status_image.is_file():
+            return None
+        data = self.runner.current
+        view = overlay_view(data, state) if data is not None else None
+        out = {"url": "/status.png", "version": self.status_image.stat().st_mtime_ns}
+        out.update({"job_id": data.job_id} if data is not None else {})
+        return {**out, **view} if view is not None else out
+
+    def jobs_view(self) -> dict[str, Any]:
+        return {"jobs": [job_view(r) for r in self.journal.recent_jobs(self.config.daemon.recent_jobs)]}
+
+    def job_view(self, job_id: int) -> dict[str, Any]:
+        view = job_view(self.journal.job(job_id))
+        view["events"] = [
+            {"time_s": e.time_s, "from": e.from_state, "to": e.to_state, "reason": e.reason}
+            for e in self.journal.events(job_id)
+        ]
+        return view
+
+    def export(self, job_id: int, fmt: str) -> Exported:
+        """Job ``job_id`` (finished) as ``fmt``: KeyError for an unknown job, CellBusy for one not finished,
+        :class:`cell.job_exports.NothingToExport` for one that planned no path."""
+        record = self.journal.job(job_id)
+        if record.state not in FINAL_JOB_STATES:
+            raise CellBusy(f"job {job_id} is {record.state}: its exports are there once it has finished")
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:  # the worker keeps the result just after the job's report is stored
+            with self._lock:
+                if self._current is None or self._current.job_id != job_id:
+                    break
+            time.sleep(0.05)
+        return export_job(self.results_dir / str(job_id), self.config, fmt, job_id=job_id)
+
+    def metrics(self) -> bytes:
+        """The Prometheus text exposition (format 0.0.4): build info, the job-duration histogram, the counters."""
+        return self.metrics_registry.render()
+
+    def _snapshot(self) -> DaemonSnapshot:
+        with self._lock:
+            return DaemonSnapshot(
+                states=tuple(s.value for s in CellState),
+                state=self.runner.machine.state.value,
+                outcomes=dict(self._outcomes),
+                queued=len(self._queued),
+                seams_welded=int(self._totals["seams_welded"]),
+                poses_sent=int(self._totals["poses_sent"]),
+                arc_time_s=float(self._totals["arc_time_s"]),
+                cycle_phases=CYCLE_PHASES,
+                last_cycle_s=dict(self._last_cycle),
+            )
+
+    def _journal_note(self, text: str) -> None:
+        state = self.runner.machine.state.value
+        self.journal.record_state_change(self.runner.machine.job_id, state, state, text)
+
+    # ------------------------------------------------------------------------------------------ commands
     def acknowledge(self, operator: str) -> tuple[int, dict[str, Any]]:
         """POST /acknowledge: (HTTP status, answer). Waits for the runner to finish a job that faulted."""
         machine = self.runner.machine
         if machine.state is not CellState.FAULT:
             return HTTPStatus.CONFLICT, {"error": f"the cell is {machine.state.value}, not in fault"}
+        reason = machine.fault_reason
         try:
             ok = self.runner.acknowledge(operator)
         except CellBusy as err:
             return HTTPStatus.CONFLICT, {"error": str(err)}
+        fault = explain_fault(reason)
+        if ok and fault is not None:
+            with self._lock:
+                self._last_fault = {
+                    "reason": reason,
+                    **fault.to_dict(),
+                    "acknowledged_by": operator,
+                    "acknowledged_s": time.time(),
+                }
         status = HTTPStatus.OK if ok else HTTPStatus.CONFLICT
         return status, {"state": machine.state.value, "fault_reason": machine.fault_reason}
 
@@ -444,92 +502,6 @@ class Daemon:
             ok = machine.resume() if command == "resume" else machine.abort(operator)
         status = HTTPStatus.OK if ok else HTTPStatus.CONFLICT
         return status, {"state": machine.state.value, "fault_reason": machine.fault_reason}
-
-    def sim_fault_command(self, path: str, body: bytes) -> dict[str, Any]:
-        """POST /sim/faults {"device", "fault", "params"} or /sim/faults/clear {"device"} (optional)."""
-        try:
-            text = body.decode("utf-8")
-        except UnicodeDecodeError as err:
-            raise ConfigError("the request body is not UTF-8 text") from err
-        obj = parse_json_object(text)
-        device = obj.get("device")
-        if path.endswith("/clear"):
-            if device is not None and not isinstance(device, str):
-                raise ConfigError('"device" must be a device name (or left out: every simulator)')
-            return {"cleared": self.clear_sim_faults(device)}
-        fault, params = obj.get("fault"), obj.get("params", {})
-        if not isinstance(device, str) or not isinstance(fault, str) or not isinstance(params, dict):
-            raise ConfigError('send {"device": "robot" | "track" | "camera", "fault": "<name>", "params": {}}')
-        self.inject_sim_fault(device, fault, params)
-        return {"device": device, "fault": fault, "params": params}
-
-    def job_view(self, job_id: int) -> dict[str, Any]:
-        view = _job_view(self.journal.job(job_id))
-        view["events"] = [
-            {"time_s": e.time_s, "from": e.from_state, "to": e.to_state, "reason": e.reason}
-            for e in self.journal.events(job_id)
-        ]
-        return view
-
-    def metrics(self) -> str:
-        """The Prometheus text exposition (format 0.0.4)."""
-        m = self.runner.machine
-        with self._lock:
-            outcomes = dict(self._outcomes)
-            totals = dict(self._totals)
-            cycle = dict(self._last_cycle)
-            queued = len(self._queued)
-        lines = [
-            "# HELP weldcell_cell_state 1 for the state the cell is in, 0 for the others.",
-            "# TYPE weldcell_cell_state gauge",
-        ]
-        lines += [f'weldcell_cell_state{{state="{s.value}"}} {int(m.state is s)}' for s in CellState]
-        lines += [
-            "# HELP weldcell_jobs_finished_total Jobs finished since the daemon started, by outcome.",
-            "# TYPE weldcell_jobs_finished_total counter",
-        ]
-        for outcome in ("welded", "dry_run", "rejected", "no_seam", "refused", "fault"):
-            lines.append(f'weldcell_jobs_finished_total{{outcome="{outcome}"}} {outcomes.get(outcome, 0)}')
-        lines += [
-            "# HELP weldcell_jobs_queued Jobs waiting in the queue.",
-            "# TYPE weldcell_jobs_queued gauge",
-            f"weldcell_jobs_queued {queued}",
-            "# HELP weldcell_seams_welded_total Seams welded since the daemon started.",
-            "# TYPE weldcell_seams_welded_total counter",
-            f"weldcell_seams_welded_total {totals['seams_welded']}",
-            "# HELP weldcell_poses_sent_total Robot poses commanded since the daemon started.",
-            "# TYPE weldcell_poses_sent_total counter",
-            f"weldcell_poses_sent_total {totals['poses_sent']}",
-            "# HELP weldcell_arc_seconds_total Time with the arc on since the daemon started.",
-            "# TYPE weldcell_arc_seconds_total counter",
-            f"weldcell_arc_seconds_total {totals['arc_time_s']:.3f}",
-            "# HELP weldcell_last_job_cycle_seconds Cycle time of the last finished job, by phase.",
-            "# TYPE weldcell_last_job_cycle_seconds gauge",
-        ]
-        for phase in (*CYCLE_PHASES, "total"):
-            lines.append(f'weldcell_last_job_cycle_seconds{{phase="{phase}"}} {cycle.get(phase, 0.0):.3f}')
-        return "\n".join(lines) + "\n"
-
-    def page(self) -> str:
-        st = self.status()
-        rows = "".join(
-            f"<tr><td>{j['id']}</td><td>{html.escape(str(j['job_file']))}</td><td>{j['state']}</td>"
-            f"<td>{'' if j['report'] is None else j['report'].get('seams_welded', '')}</td>"
-            f"<td>{html.escape(j['error'] or '')}</td></tr>"
-            for j in st["recent_jobs"]
-        )
-        current = st["current_job"]
-        fault = f"<p class=fault>fault: {html.escape(st['fault_reason'])}</p>" if st["fault_reason"] else ""
-        image = '<img src="/status.png" alt="last capture overlay">' if self.status_image.is_file() else ""
-        return (
-            "<!doctype html><html><head><meta charset=utf-8><meta http-equiv=refresh content=2>"
-            "<title>weldcell</title><style>body{font-family:sans-serif}td,th{padding:2px 8px}"
-            ".fault{color:#b00}img{max-width:100%}</style></head><body>"
-            f"<h1>weldcell: {st['state']}</h1>{fault}"
-            f"<p>current job: {html.escape(json.dumps(current)) if current else 'none'}; queued: {st['queued']}</p>"
-            f"{image}<h2>recent jobs</h2><table><tr><th>id</th><th>job</th><th>state</th><th>seams welded</th>"
-            f"<th>error</th></tr>{rows}</table></body></html>"
-        )
 
     # ------------------------------------------------------------------------------------------ shutdown
     def shutdown(self, reason: str) -> None:
@@ -575,72 +547,12 @@ class Daemon:
         return on
 
 
-def parse_flag(value: str, what: str) -> bool:
-    """A query flag: ``1|true|yes`` or ``0|false|no`` (any case); ConfigError for anything else."""
-    low = value.strip().lower()
-    if low in ("1", "true", "yes"):
-        return True
-    if low in ("0", "false", "no"):
-        return False
-    raise ConfigError(f"{what} must be one of 1, true, yes, 0, false, no")
-
-
-def parse_json_object(text: str) -> dict[str, Any]:
-    """A JSON object from a request body; ConfigError for anything else (the position, never the text)."""
-    try:
-        obj = json.loads(text or "{}")
-    except json.JSONDecodeError as err:
-        raise ConfigError(f"the request body is not valid JSON (line {err.lineno}, column {err.colno})") from err
-    except RecursionError as err:
-        raise ConfigError("the request body is nested too deeply") from err
-    if not isinstance(obj, dict):
-        raise ConfigError("send a JSON object")
-    return obj
-
-
-def _job_view(record: JobRecord) -> dict[str, Any]:
-    return {
-        "id": record.id,
-        "job_file": record.job_file,
-        "state": record.state,
-        "submitted_s": record.submitted_s,
-        "started_s": record.started_s,
-        "finished_s": record.finished_s,
-        "report": record.report,
-        "error": record.error,
-    }
-
-
-# ---------------------------------------------------------------------------------------------- memory
-# A daemon that runs for days must not creep. Each job allocates and frees a few hundred MiB of arrays on
-# the worker thread; glibc keeps freed memory in per-thread arenas, so the resident size grew ~0.4 MiB per
-# job over a 100-job soak (scripts/soak.py) with no Python object leaked. Fewer arenas and handing freed
-# memory back after each job keep it flat. Both are no-ops where glibc is absent.
-_M_ARENA_MAX = -8  # mallopt parameter (glibc malloc.h)
-
-
-def _libc() -> Any:
-    import ctypes
-    import ctypes.util
-    import sys
-
-    name = ctypes.util.find_library("c")
-    if not name or not sys.platform.startswith("linux"):
-        return None
-    try:
-        return ctypes.CDLL(name)
-    except OSError:
-        return None
-
-
-def limit_malloc_arenas(arenas: int = 2) -> bool:
-    """Cap glibc's malloc arenas (as MALLOC_ARENA_MAX would); True when it took effect."""
-    libc = _libc()
-    return bool(libc is not None and hasattr(libc, "mallopt") and libc.mallopt(_M_ARENA_MAX, arenas) == 1)
-
-
-def release_freed_memory() -> bool:
-    """Return freed heap memory to the system (glibc malloc_trim); True when some was released."""
-    libc = _libc()
-    return bool(libc is not None and hasattr(libc, "malloc_trim") and libc.malloc_trim(0) == 1)
-
+def _check_sim_faults_allowed(config: CellConfig, *, own_simulators: bool) -> None:
+    real = real_devices(config)
+    if real:
+        raise ConfigError(
+            f"{config.source or 'the config'}: --sim-faults is for simulated cells only, and "
+            f"{', '.join(real)} is real hardware"
+        )
+    if not own_simulators:
+        raise ConfigError("--sim-faults needs the simulators this daemon starts: it cannot be combined with --no-sims")

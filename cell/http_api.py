@@ -2,16 +2,18 @@
 
 Routes (the same as the hand-written server had; ``GET /openapi.json`` describes them)::
 
-    POST /jobs, GET /jobs, GET /jobs/{id}, POST /jobs/{id}/approve, POST /jobs/{id}/reject,
-    POST /acknowledge, POST /pause, POST /resume, POST /abort, GET /status, GET /, GET /status.png,
-    GET /metrics, and with ``--sim-faults`` GET /sim/faults, POST /sim/faults, POST /sim/faults/clear
+    POST /jobs, GET /jobs, GET /jobs/{id}, GET /jobs/{id}/export/{format}, POST /jobs/{id}/approve,
+    POST /jobs/{id}/reject, POST /acknowledge, POST /pause, POST /resume, POST /abort, GET /status, GET /,
+    GET /status.png, GET /metrics, and with ``--sim-faults`` GET /sim/faults, POST /sim/faults,
+    POST /sim/faults/clear
 
 What guards them, in order, for every request:
 
 1. ``Host`` must name this daemon (its bound address, ``localhost``, ``127.0.0.1``, ``[::1]``, or one of
    ``[daemon] allowed_hosts``), with or without the port: a page from another site that rebinds its DNS name to the
    cell PC is refused (400).
-2. With ``[daemon] token``, ``Authorization: Bearer <token>`` on every route, the OpenAPI document included (401).
+2. With ``[daemon] token``, ``Authorization: Bearer <token>`` on every route, the OpenAPI document included (401),
+   but ``GET /``: the operator page's HTML holds no data; the page sends the token with each of its requests.
 3. Every request that changes state (POST) is refused (403) when it comes from a browser page of another origin:
    an ``Origin`` header that is not this daemon's own (or one of ``[daemon] allowed_origins``), or
    ``Sec-Fetch-Site: cross-site``. Clients that are not browsers send no ``Origin`` and are not affected.
@@ -54,6 +56,7 @@ from cell.errors import ConfigError, WeldcellError
 
 if TYPE_CHECKING:
     from cell.daemon import Daemon
+    from cell.sim_fault_api import SimFaultSwitch
 
 logger = logging.getLogger(__name__)
 
@@ -144,6 +147,11 @@ class Guards:
 
 
 # ============================================================================================== the app
+PUBLIC_PATHS = frozenset({"/"})
+"""Paths served without the token: the operator page's own HTML, which holds no data of the cell (the page asks for
+the token and sends it with every request it makes, as any client does)."""
+
+
 def build_app(daemon: Daemon, port: int) -> FastAPI:
     """The ASGI app of ``daemon`` listening on ``port`` (for the Host and Origin checks)."""
     guards = Guards(daemon, port)
@@ -160,7 +168,8 @@ def build_app(daemon: Daemon, port: int) -> FastAPI:
     async def guard(request: Request, call_next: Callable[[Request], Awaitable[Response]]) -> Response:
         if not guards.host_ok(request):
             return _error(400, "the Host header does not name this cell's service")
-        if not guards.authorized(request):
+        public = request.method in ("GET", "HEAD") and request.url.path in PUBLIC_PATHS
+        if not public and not guards.authorized(request):
             return _error(
                 401,
                 "a bearer token is required: Authorization: Bearer <token>",
@@ -180,6 +189,15 @@ def build_app(daemon: Daemon, port: int) -> FastAPI:
             if head:
                 request.scope["method"] = "HEAD"
 
+    _error_handlers(app)
+    _reading_routes(app, daemon)
+    _command_routes(app, daemon, guards)
+    if daemon.sim is not None:
+        _sim_fault_routes(app, daemon.sim, guards)
+    return app
+
+
+def _error_handlers(app: FastAPI) -> None:
     @app.exception_handler(StarletteHTTPException)
     async def http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         method = "HEAD" if request.scope.get("weldcell.head") else request.method
@@ -209,9 +227,75 @@ def build_app(daemon: Daemon, port: int) -> FastAPI:
         logger.error("http %s %s failed", request.method, request.url.path, exc_info=exc)
         return _error(500, "internal error (logged by the daemon)")
 
-    def ok(obj: Any, status: int = 200) -> JSONResponse:
-        return JSONResponse(obj, status_code=status, headers={"Cache-Control": "no-store"})
 
+def _ok(obj: Any, status: int = 200) -> JSONResponse:
+    return JSONResponse(obj, status_code=status, headers={"Cache-Control": "no-store"})
+
+
+def _job_id(job_id: int) -> int:
+    if not 0 <= job_id <= MAX_JOB_ID:
+        raise HTTPError(404, f"no job {job_id}")
+    return job_id
+
+
+def _reading_routes(app: FastAPI, daemon: Daemon) -> None:
+    @app.get("/status", summary="The cell's state, the current and queued jobs, recent and interrupted jobs")
+    def status() -> JSONResponse:
+        return _ok(daemon.status())
+
+    @app.get("/jobs", summary="The recent jobs, newest first")
+    def jobs() -> JSONResponse:
+        return _ok(daemon.jobs_view())
+
+    @app.get("/jobs/{job_id}", summary="One job: state, report, error and its journaled events")
+    def job(job_id: int) -> JSONResponse:
+        try:
+            return _ok(daemon.job_view(_job_id(job_id)))
+        except KeyError as err:
+            raise HTTPError(404, f"no job {job_id}") from err
+
+    @app.get(
+        "/jobs/{job_id}/export/{fmt}",
+        summary="A finished job's seams and path as urscript, ls, rosbag2 (a zip of the bag folder), gltf or html",
+    )
+    def export(job_id: int, fmt: str) -> Response:
+        from cell.job_exports import FORMATS, NothingToExport
+        from cell.runner import CellBusy
+
+        if fmt not in FORMATS:
+            raise HTTPError(404, f"no export format {fmt!r}; choose one of {', '.join(FORMATS)}")
+        try:
+            out = daemon.export(_job_id(job_id), fmt)
+        except KeyError as err:
+            raise HTTPError(404, f"no job {job_id}") from err
+        except (CellBusy, NothingToExport) as err:
+            raise HTTPError(409, str(err)) from err
+        disposition = f'attachment; filename="{out.filename}"'
+        return Response(out.body, media_type=out.media_type, headers={"Content-Disposition": disposition})
+
+    @app.get("/metrics", summary="Prometheus text format", response_class=PlainTextResponse)
+    def metrics() -> Response:
+        from cell.metrics import CONTENT_TYPE
+
+        return Response(daemon.metrics(), media_type=CONTENT_TYPE)
+
+    @app.get("/", summary="The operator page (its data: /status, with the token)", response_class=HTMLResponse)
+    def page() -> HTMLResponse:
+        from cell.operator_page import page_html
+
+        return HTMLResponse(page_html(), headers={"Cache-Control": "no-store"})
+
+    @app.get("/status.png", summary="The overlay of the last capture (PNG)")
+    def status_png() -> Response:
+        try:
+            return Response(
+                daemon.status_image.read_bytes(), media_type="image/png", headers={"Cache-Control": "no-store"}
+            )
+        except OSError as err:
+            raise HTTPError(404, "no capture yet") from err
+
+
+def _command_routes(app: FastAPI, daemon: Daemon, guards: Guards) -> None:
     async def operator_of(request: Request) -> str:
         body, _ = await guards.body(request, JSON_TYPES)
         try:
@@ -223,40 +307,6 @@ def build_app(daemon: Daemon, port: int) -> FastAPI:
             raise HTTPError(400, 'send {"operator": "<name>"}: an operator must be named')
         return name.strip()
 
-    # ------------------------------------------------------------------------------------------ reading
-    @app.get("/status", summary="The cell's state, the current and queued jobs, recent and interrupted jobs")
-    def status() -> JSONResponse:
-        return ok(daemon.status())
-
-    @app.get("/jobs", summary="The recent jobs, newest first")
-    def jobs() -> JSONResponse:
-        return ok(daemon.jobs_view())
-
-    @app.get("/jobs/{job_id}", summary="One job: state, report, error and its journaled events")
-    def job(job_id: int) -> JSONResponse:
-        if not 0 <= job_id <= MAX_JOB_ID:
-            raise HTTPError(404, f"no job {job_id}")
-        try:
-            return ok(daemon.job_view(job_id))
-        except KeyError as err:
-            raise HTTPError(404, f"no job {job_id}") from err
-
-    @app.get("/metrics", summary="Prometheus text format", response_class=PlainTextResponse)
-    def metrics() -> PlainTextResponse:
-        return PlainTextResponse(daemon.metrics(), media_type="text/plain; version=0.0.4; charset=utf-8")
-
-    @app.get("/", summary="A status page that refreshes itself", response_class=HTMLResponse)
-    def page() -> HTMLResponse:
-        return HTMLResponse(daemon.page(), headers={"Cache-Control": "no-store"})
-
-    @app.get("/status.png", summary="The overlay of the last capture (PNG)")
-    def status_png() -> Response:
-        try:
-            return Response(daemon.status_image.read_bytes(), media_type="image/png")
-        except OSError as err:
-            raise HTTPError(404, "no capture yet") from err
-
-    # ------------------------------------------------------------------------------------------ commands
     @app.post(
         "/jobs",
         status_code=201,
@@ -268,14 +318,13 @@ def build_app(daemon: Daemon, port: int) -> FastAPI:
         query = request.query_params.get("dry_run")
         job, dry_run = await run_in_threadpool(daemon.job_from_request, body, ctype, query)
         job_id = await run_in_threadpool(daemon.submit, job, dry_run=dry_run)
-        return ok({"id": job_id, "state": "queued", "dry_run": dry_run}, 201)
+        return _ok({"id": job_id, "state": "queued", "dry_run": dry_run}, 201)
 
     async def answer(job_id: int, request: Request, approve: bool) -> JSONResponse:
         operator = await operator_of(request)
-        if not 0 <= job_id <= MAX_JOB_ID:
-            raise HTTPError(404, f"no job {job_id}")
+        _job_id(job_id)
         if await run_in_threadpool(daemon.answer_approval, job_id, operator if approve else None):
-            return ok({"id": job_id, "approved": approve, "operator": operator})
+            return _ok({"id": job_id, "approved": approve, "operator": operator})
         raise HTTPError(409, f"job {job_id} is not waiting for approval")
 
     @app.post("/jobs/{job_id}/approve", summary='{"operator": "name"}: approve the planned path of a waiting job')
@@ -290,14 +339,14 @@ def build_app(daemon: Daemon, port: int) -> FastAPI:
     async def acknowledge(request: Request) -> JSONResponse:
         operator = await operator_of(request)
         code, obj = await run_in_threadpool(daemon.acknowledge, operator)
-        return ok(obj, code)
+        return _ok(obj, code)
 
     for command in ("pause", "resume", "abort"):
 
         async def motion(request: Request, command: str = command) -> JSONResponse:
             operator = await operator_of(request)
             code, obj = await run_in_threadpool(daemon.motion_command, command, operator)
-            return ok(obj, code)
+            return _ok(obj, code)
 
         app.add_api_route(
             f"/{command}",
@@ -307,28 +356,27 @@ def build_app(daemon: Daemon, port: int) -> FastAPI:
             name=command,
         )
 
-    # ------------------------------------------------------------------------------------------ test only
-    if daemon.sim_faults:
 
-        @app.get("/sim/faults", summary="Test only: the simulated devices and their faults")
-        def sim_faults() -> JSONResponse:
-            return ok(daemon.sim_fault_view())
+def _sim_fault_routes(app: FastAPI, sim: SimFaultSwitch, guards: Guards) -> None:
+    """Test only (``--sim-faults``)."""
 
-        @app.post("/sim/faults", summary='Test only: {"device", "fault", "params"} switches a simulator fault on')
-        async def inject(request: Request) -> JSONResponse:
-            body, _ = await guards.body(request, JSON_TYPES)
-            return ok(await run_in_threadpool(daemon.sim_fault_command, "/sim/faults", body))
+    @app.get("/sim/faults", summary="Test only: the simulated devices and their faults")
+    def sim_faults() -> JSONResponse:
+        return _ok(sim.view())
 
-        @app.post("/sim/faults/clear", summary='Test only: {"device"} or {}: switch simulator faults off')
-        async def clear(request: Request) -> JSONResponse:
-            body, _ = await guards.body(request, JSON_TYPES)
-            return ok(await run_in_threadpool(daemon.sim_fault_command, "/sim/faults/clear", body))
+    @app.post("/sim/faults", summary='Test only: {"device", "fault", "params"} switches a simulator fault on')
+    async def inject(request: Request) -> JSONResponse:
+        body, _ = await guards.body(request, JSON_TYPES)
+        return _ok(await run_in_threadpool(sim.command, "/sim/faults", body))
 
-    return app
+    @app.post("/sim/faults/clear", summary='Test only: {"device"} or {}: switch simulator faults off')
+    async def clear(request: Request) -> JSONResponse:
+        body, _ = await guards.body(request, JSON_TYPES)
+        return _ok(await run_in_threadpool(sim.command, "/sim/faults/clear", body))
 
 
 # ============================================================================================== the server
-def _protocol(header_timeout_s: float) -> type[H11Protocol]:
+def _protocol(header_timeout_s: float) -> type[H11Protocol]:  # long: one class, its methods share the deadline
     """uvicorn's h11 protocol with a deadline on each request's line and headers: a client that has not sent a
     whole request head within ``header_timeout_s`` (slowloris, a half-open request) gets 408 and is closed."""
 

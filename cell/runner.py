@@ -28,46 +28,37 @@ planning (with validation) and motion (homing, welding, retracting).
 
 from __future__ import annotations
 
-import concurrent.futures
 import contextlib
 import dataclasses
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cell.config import CellConfig
 from cell.errors import ConfigError, SafetyViolation, WeldcellError
 from cell.factory import Cell
 from cell.job import PROMPTS_AUTOMATIC, Job, detect_params, weld_params
+from cell.job_checks import capture_pose, check_job, safety_limits
+from cell.job_report import JobData, JobReport, job_report
 from cell.journal import Journal
 from cell.machine import CellActions, CellMachine, CellState
-from cell.planning import CellGeometry, Reach, SeamPass, TrackAxis, WeldParams, WeldPath, plan_weld_path
-from cell.safety import SafetyLimits, validate
-from cell.world_seams import WorldSeam, X_world_base, collect_seams
+from cell.planning import SeamPass, WeldParams, WeldPath, plan_weld_path
+from cell.safety import validate
+from cell.watchdog import FINAL_STATES, DeviceWatchdog
+from cell.world_seams import X_world_base, collect_seams
 from drivers.errors import ConnectionLost, DeviceTimeout, DriverError, EmergencyStop, ProtectiveStop, TrackFault
 from drivers.protocols import RobotMode
-from perception.capture import Capture
 from perception.errors import NoSeamFound
-from perception.seams import DetectionResult
 
 logger = logging.getLogger(__name__)
 
 S = CellState
 
 AUTO_APPROVER = "auto (job approval = false)"
-FINAL_STATES = (S.DONE, S.FAULT, S.IDLE)
-MOTION_STATES = (S.HOMING, S.MOVING_TO_CAPTURE, S.WELDING, S.RETRACTING)
-"""States whose work moves the robot (or has the arc on): the watchdog's answer deadline applies in these."""
-CYCLE_PHASES = ("capture", "detection", "planning", "motion")
-MAX_DWELL_S = 10.0
-"""The longest arc-on or arc-off dwell a job may ask for."""
 
 
 class CellFaulted(WeldcellError):
@@ -78,81 +69,8 @@ class CellBusy(WeldcellError):
     """The runner is still busy with a job (an acknowledgement waits for it to finish)."""
 
 
-def safety_limits(config: CellConfig) -> SafetyLimits:
-    """The :class:`SafetyLimits` of ``config``'s ``[safety]`` and ``[track]``; ConfigError without ``[safety]``."""
-    sc = config.safety
-    if sc is None:
-        raise ConfigError(
-            f"{config.where('safety')}: running jobs needs a [safety] table (workspace box, reach, limits); "
-            "see examples/sim-cell.toml"
-        )
-    track = None
-    if config.track.kind != "none":
-        lo, hi = config.track.soft_limits_m
-        track = TrackAxis(lo, hi, np.asarray(sc.track_axis_base, dtype=np.float64))
-    reach = Reach(sc.reach_radius_m, sc.reach_preferred_m, np.asarray(sc.reach_centre_base, dtype=np.float64))
-    return SafetyLimits(
-        workspace_min_world=np.asarray(sc.workspace_min_world, dtype=np.float64),
-        workspace_max_world=np.asarray(sc.workspace_max_world, dtype=np.float64),
-        geometry=CellGeometry(reach, track),
-        max_speed_m_s=sc.max_speed_m_s,
-        max_accel_m_s2=sc.max_accel_m_s2,
-        max_blend_m=sc.max_blend_m,
-        max_step_m=sc.max_step_m,
-        max_step_rad=math.radians(sc.max_step_deg),
-        max_tilt_rad=math.radians(sc.max_tilt_deg),
-    )
 
 
-@dataclass
-class JobReport:
-    """What a job did. ``state``: the machine's final state (``done``, ``fault``, ``idle``); ``outcome``:
-    ``welded``, ``dry_run``, ``rejected``, ``no_seam``, ``refused`` (a safety violation, nothing moved for
-    welding) or ``fault``; ``reason``: why it did not weld (None when it did). Times in seconds."""
-
-    job_id: int
-    workpiece: str
-    state: str
-    outcome: str
-    reason: str | None
-    dry_run: bool
-    seams_found: int
-    seams_planned: int
-    seams_welded: int
-    poses_sent: int
-    arc_time_s: float
-    cycle_s: dict[str, float]
-    path: dict[str, Any] | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        out = dataclasses.asdict(self)
-        out["arc_time_s"] = round(self.arc_time_s, 3)
-        out["cycle_s"] = {k: round(v, 3) for k, v in self.cycle_s.items()}
-        return out
-
-
-@dataclass
-class JobData:
-    """What the running (or last) job has gathered and done so far: its captures ((track position m, Capture)),
-    detection results, world-frame seams, the validated path, where welding stands (``next_pass``, ``resume_from``:
-    the travel pose a paused pass resumes from; ``pending_retract``: a retract pose not yet reached), counters
-    and the seconds spent per cycle phase."""
-
-    job: Job
-    job_id: int
-    dry_run: bool
-    params: WeldParams
-    captures: list[tuple[float, Capture]] = field(default_factory=list)
-    results: list[DetectionResult | None] = field(default_factory=list)
-    seams: list[WorldSeam] = field(default_factory=list)
-    path: WeldPath | None = None
-    next_pass: int = 0
-    resume_from: int = 0
-    pending_retract: np.ndarray | None = None
-    seams_welded: int = 0
-    poses_sent: int = 0
-    arc_time_s: float = 0.0
-    times: dict[str, float] = field(default_factory=lambda: dict.fromkeys(CYCLE_PHASES, 0.0))
 
 
 Progress = Callable[[str, dict[str, Any]], None]
@@ -163,10 +81,8 @@ Progress = Callable[[str, dict[str, Any]], None]
 class JobRunner:
     """Runs jobs on ``cell`` (its drivers connected by :meth:`connect` or already connected), journaling to
     ``journal``. ``on_progress``: see :data:`Progress`. ``status_image``: where the overlay of the last capture is
-    written (PNG; None: not written). ``watchdog_period_s``: how often the watchdog polls the devices;
-    ``answer_timeout_s``: while the robot moves (:data:`MOTION_STATES`), a device whose status has not come back
-    within this long is a fault (the poll runs in a thread of its own, so a device that hangs cannot hold the
-    watchdog up)."""
+    written (PNG; None: not written). ``watchdog_period_s``, ``answer_timeout_s``: the device watchdog's poll
+    period and, while the robot moves, its answer deadline (:class:`cell.watchdog.DeviceWatchdog`)."""
 
     def __init__(
         self,
@@ -184,17 +100,12 @@ class JobRunner:
         self.limits = safety_limits(cell.config)
         self.on_progress = on_progress
         self.status_image = Path(status_image) if status_image is not None else None
-        self.watchdog_period_s = watchdog_period_s
-        self.answer_timeout_s = answer_timeout_s
         self._job_lock = threading.Lock()  # held by run() for a whole job; acknowledge() waits for it
         self._data: JobData | None = None
         arc_output = cell.config.welding.arc_output
         self._arc_index = arc_output if arc_output is not None else WeldParams().arc_do_index
         self._arc_on_since: float | None = None
         self._arc_lock = threading.Lock()
-        self._watchdog_stop = threading.Event()
-        self._watchdog_thread: threading.Thread | None = None
-        self._watchdog_fired = False
         self.machine = CellMachine(
             CellActions(
                 stop_motion=self._stop_motion,
@@ -211,6 +122,13 @@ class JobRunner:
             ),
             journal=journal,
             name=cell.config.robot.name,
+        )
+        self.watchdog = DeviceWatchdog(
+            cell,
+            state=lambda: self.machine.state,
+            fault_now=self.machine.fault_now,
+            period_s=watchdog_period_s,
+            answer_timeout_s=answer_timeout_s,
         )
 
     # ------------------------------------------------------------------------------------------ lifecycle
@@ -259,14 +177,14 @@ class JobRunner:
         self._data = data
         self._arc_index = params.arc_do_index
         t0 = time.monotonic()
-        self._start_watchdog()
+        self.watchdog.start()
         try:
             self._emit("state", state=self.machine.state.value, reason=f"job {job_id} ({job.workpiece}) starting")
             if self.machine.start_job(job_id, n_captures=len(job.captures), dry_run=dry_run):
                 self._drive(data, approve)
         finally:
-            self._stop_watchdog()
-        report = self._report(data, time.monotonic() - t0)
+            self.watchdog.stop()
+        report = job_report(self.machine, data, time.monotonic() - t0)
         try:
             self.journal.set_report(job_id, report.to_dict())
         except WeldcellError:
@@ -327,43 +245,6 @@ class JobRunner:
             self._job_lock.release()
 
     # ------------------------------------------------------------------------------------------ report
-    def _report(self, data: JobData, total_s: float) -> JobReport:
-        m = self.machine
-        state = m.state
-        reason: str | None = None
-        err = m.last_error
-        if state is S.DONE:
-            outcome = "welded"
-        elif state is S.FAULT:
-            reason = m.fault_reason
-            if isinstance(err, NoSeamFound):
-                outcome = "no_seam"
-            elif isinstance(err, SafetyViolation):
-                outcome = "refused"
-            else:
-                outcome = "fault"
-        elif data.dry_run and data.path is not None:
-            outcome, reason = "dry_run", "dry run: planned and validated, nothing moved or welded"
-        else:
-            outcome, reason = "rejected", "the operator did not approve the path"
-        cycle = dict(data.times)
-        cycle["total"] = total_s
-        path = data.path
-        return JobReport(
-            job_id=data.job_id,
-            workpiece=data.job.workpiece,
-            state=state.value,
-            outcome=outcome,
-            reason=reason,
-            dry_run=data.dry_run,
-            seams_found=len(data.seams),
-            seams_planned=len(path.passes) if path is not None else 0,
-            seams_welded=data.seams_welded,
-            poses_sent=data.poses_sent,
-            arc_time_s=data.arc_time_s,
-            cycle_s=cycle,
-            path=path.summary() if path is not None else None,
-        )
 
     # ------------------------------------------------------------------------------------------ helpers
     def _emit(self, kind: str, **data: Any) -> None:
@@ -496,81 +377,12 @@ class JobRunner:
             self._move(X_base_tool, self.config.robot.speed_m_s, self.config.robot.accel_m_s2, f"capture {index + 1}")
 
     def check_job(self, job: Job) -> None:
-        """Refuse (ConfigError naming the job's key and the cell's limit) a job the cell must not even queue: speeds,
-        acceleration and blend over the cell's ``[safety]`` limits, another arc output than the cell's (its
-        controller-side watchdog covers that one), capture poses beyond the reach or track positions outside the
-        track's soft limits, dwell times and distances out of any sensible range, seam ids that are not 31-bit
-        integers. Numbers are finite already (the job's tables refuse inf and nan)."""
-        lim = self.limits
-        params = weld_params(self.config.welding, job.spec.welding, job.spec.seams.seam_filter())
-        w = job.spec.welding
-        for key, value, limit, name in (
-            ("travel_speed_m_s", params.travel_speed_m_s, lim.max_speed_m_s, "max_speed_m_s"),
-            ("approach_speed_m_s", params.approach_speed_m_s, lim.max_speed_m_s, "max_speed_m_s"),
-            ("air_speed_m_s", params.air_speed_m_s, lim.max_speed_m_s, "max_speed_m_s"),
-            ("accel_m_s2", params.accel_m_s2, lim.max_accel_m_s2, "max_accel_m_s2"),
-            ("blend_m", params.blend_m, lim.max_blend_m, "max_blend_m"),
-        ):
-            if not value <= limit:
-                raise ConfigError(
-                    f"{job.where(f'welding.{key}')}: {value} exceeds the cell's limit [safety] {name} = {limit}"
-                )
-        reach = lim.geometry.reach
-        for key in ("approach_m", "retract_m", "stickout_m"):
-            value = getattr(params, key)
-            if not value <= reach.radius_m:
-                raise ConfigError(
-                    f"{job.where(f'welding.{key}')}: {value} m exceeds the reach radius [safety] reach_radius_m = "
-                    f"{reach.radius_m} m"
-                )
-        for key in ("arc_on_dwell_s", "arc_off_dwell_s"):
-            value = getattr(params, key)
-            if not value <= MAX_DWELL_S:
-                raise ConfigError(f"{job.where(f'welding.{key}')}: {value} s exceeds the limit of {MAX_DWELL_S} s")
-        cell_arc = self.config.welding.arc_output if self.config.welding.arc_output is not None else 0
-        if w.arc_output is not None and w.arc_output != cell_arc:
-            raise ConfigError(
-                f"{job.where('welding.arc_output')}: {w.arc_output} is not the cell's arc output [welding] "
-                f"arc_output = {cell_arc} (the one its controller-side watchdog switches off)"
-            )
-        for seam_id in job.spec.seams.ids or ():
-            if not 0 <= seam_id < 2**31:
-                raise ConfigError(f"{job.where('seams.ids')}: {seam_id} is not a seam id (0 <= id < 2^31)")
-        track = lim.geometry.track
-        for i, capture in enumerate(job.captures):
-            t = capture.track_position_m
-            if track is None and t != 0.0:
-                raise ConfigError(
-                    f"{job.where(f'capture[{i}].track_position_m')}: {t} m, but the cell has no track ([track])"
-                )
-            if track is not None and not track.min_m <= t <= track.max_m:
-                raise ConfigError(
-                    f"{job.where(f'capture[{i}].track_position_m')}: {t} m is outside the track's soft limits "
-                    f"[track] soft_limit_min_m..soft_limit_max_m = {track.min_m}..{track.max_m} m"
-                )
-            X = self.capture_pose(job, i)
-            d = float(np.linalg.norm(X[:3, 3] - reach.centre_base))
-            if not d <= reach.radius_m:
-                raise ConfigError(
-                    f"{job.where(f'capture[{i}]')}: the capture pose is {d:.3f} m from the reach centre, beyond "
-                    f"[safety] reach_radius_m = {reach.radius_m} m"
-                )
+        """Refuse a job the cell must not even queue (:func:`cell.job_checks.check_job`)."""
+        check_job(self.config, self.limits, job)
 
     def capture_pose(self, job: Job, index: int) -> np.ndarray:
         """(4, 4) ``X_base_tool`` of capture ``index`` of ``job`` with the carriage at its track position."""
-        spec = job.captures[index]
-        X = spec.X_base_tool()
-        if job.spec.frame == "base":
-            return X
-        fixture = self.config.fixture
-        if fixture is None:
-            raise ConfigError(
-                f"{job.where('frame')}: the job's poses are fixture-relative but {self.config.where('fixture')} "
-                "is missing: add [fixture] X_world_fixture to the cell config"
-            )
-        X_world_fixture = np.asarray(fixture.X_world_fixture, dtype=np.float64)
-        X_base_world = X_world_base(-spec.track_position_m, self.limits.geometry.axis_base)
-        return X_base_world @ X_world_fixture @ X
+        return capture_pose(self.config, self.limits, job, index)
 
     def _capture(self, index: int) -> None:
         data = self._job()
@@ -637,7 +449,8 @@ class JobRunner:
     def _write_status_image(self, data: JobData) -> None:
         if self.status_image is None:
             return
-        for (_t, capture), result in zip(reversed(data.captures), reversed(data.results), strict=True):
+        pairs = zip(reversed(data.captures), reversed(data.results), strict=True)
+        for k, ((_t, capture), result) in enumerate(pairs):
             if result is None:
                 continue
             try:
@@ -647,6 +460,7 @@ class JobRunner:
                 tmp = self.status_image.with_name(self.status_image.name + ".tmp.png")
                 write_png(str(tmp), draw_overlay(capture, result))
                 tmp.replace(self.status_image)
+                data.status_capture = len(data.captures) - 1 - k
             except Exception:  # the status page is a convenience: never fail a job for it
                 logger.exception("cannot write the status image %s", self.status_image)
             return
@@ -665,6 +479,7 @@ class JobRunner:
                 raise NoSeamFound(f"no seam left to weld after the job's [seams] filter ({reasons})")
             validate(path, self.limits)
             data.path = path
+            data.planned_from = (t, p_world)
             data.next_pass = 0
             data.resume_from = 0
         self._note(
@@ -790,62 +605,3 @@ class JobRunner:
         self._arc_off()
         if self.arc_reads_on():
             raise DriverError(f"{robot.name}: the arc output {self._arc_index} still reads on after switching it off")
-
-    # ------------------------------------------------------------------------------------------ watchdog
-    def _start_watchdog(self) -> None:
-        self._watchdog_stop.clear()
-        self._watchdog_fired = False
-        self._watchdog_thread = threading.Thread(target=self._watch, name="cell-watchdog", daemon=True)
-        self._watchdog_thread.start()
-
-    def _stop_watchdog(self) -> None:
-        self._watchdog_stop.set()
-        thread, self._watchdog_thread = self._watchdog_thread, None
-        if thread is not None:
-            thread.join(timeout=10.0)
-
-    def _watch(self) -> None:
-        poller = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="cell-device-poll")
-        try:
-            while not self._watchdog_stop.wait(self.watchdog_period_s):
-                if self.machine.state in (*FINAL_STATES, S.PAUSED) or self._watchdog_fired:
-                    continue
-                # the deadline applies while something moves or the arc may be on; while capturing, detecting or
-                # planning this process's own computing can hold the GIL for longer than that (the drivers' own
-                # timeouts still end a poll that gets no answer)
-                limit = self.answer_timeout_s if self.machine.state in MOTION_STATES else None
-                poll = poller.submit(self._device_problem)
-                try:
-                    problem = poll.result(timeout=limit)
-                except concurrent.futures.TimeoutError:
-                    problem = f"no status from the robot or the track within {self.answer_timeout_s:.1f} s"
-                except Exception as err:  # a bug in a driver's status path must still stop the cell
-                    problem = f"device status failed: {type(err).__name__}: {err}"
-                if problem is not None and not self._watchdog_stop.is_set():
-                    self._watchdog_fired = True
-                    logger.error("watchdog: %s", problem)
-                    self.machine.fault_now(f"watchdog: {problem}")
-        finally:
-            poller.shutdown(wait=False, cancel_futures=True)
-
-    def _device_problem(self) -> str | None:
-        """Why the cell must stop now, or None."""
-        robot, track = self.cell.robot, self.cell.track
-        try:
-            st = robot.state()
-        except DriverError as err:
-            return f"{robot.name} unreachable: {type(err).__name__}: {err}"
-        if st.emergency_stop:
-            return f"{robot.name}: emergency stop ({st.message})"
-        if st.protective_stop:
-            return f"{robot.name}: protective stop ({st.message})"
-        if st.mode is RobotMode.FAULT:
-            return f"{robot.name}: fault ({st.message})"
-        if track is not None:
-            try:
-                status = track.status()
-            except DriverError as err:
-                return f"{track.name} unreachable: {type(err).__name__}: {err}"
-            if status.fault:
-                return f"{track.name}: fault latched (code {status.fault_code}) at {status.position_m:.4f} m"
-        return None

@@ -239,9 +239,15 @@ def test_the_token_guards_every_route_the_openapi_document_included(tmp_path: Pa
     with Daemon(config) as d:
         host, port = d.address
         base = f"http://{host}:{port}"
-        for path in ("/status", "/jobs", "/jobs/1", "/metrics", "/", "/status.png", "/openapi.json", "/nope"):
+        paths = ("/status", "/jobs", "/jobs/1", "/jobs/1/export/urscript", "/metrics", "/status.png", "/openapi.json")
+        for path in (*paths, "/nope", "/index.html", "//"):
             status, answer = request(f"{base}{path}")
             assert status == 401 and "bearer token" in answer["error"], path
+        # but the operator page's HTML, which holds no data (it sends the token with each of its requests)
+        status, page = request(f"{base}/")
+        assert status == 200 and "<title>weldcell operator</title>" in page
+        status, answer = request(f"{base}/", method="POST", body=b"{}")
+        assert status == 401
         status, doc = request(f"{base}/openapi.json", headers={"Authorization": f"Bearer {token}"})
         assert status == 200
         assert {"/jobs", "/jobs/{job_id}", "/acknowledge", "/pause", "/status", "/metrics"} <= set(doc["paths"])
