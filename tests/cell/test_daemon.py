@@ -222,51 +222,6 @@ def test_fault_injection_is_off_by_default_and_refused_next_to_real_hardware(
         cell.fault_injectors()
 
 
-@pytest.mark.timeout(30)
-def test_the_sim_fault_endpoints_switch_the_faults_of_the_daemons_own_simulators(tmp_path: Path) -> None:
-    config = cell_config(tmp_path, "sim-cell-fanuc.toml", daemon={"port": 0})
-    with Daemon(config, sim_faults=True) as d:
-        host, port = d.address
-        base = f"http://{host}:{port}"
-
-        def post(path: str, obj: Any) -> tuple[int, Any]:
-            return request(f"{base}{path}", method="POST", body=json.dumps(obj).encode())
-
-        assert request(f"{base}/status")[1]["sim_faults"] is True
-        status, view = request(f"{base}/sim/faults")
-        assert status == 200 and sorted(view["devices"]) == ["camera", "robot", "track"]
-        assert "protective_stop" in view["devices"]["robot"]["supported"]
-        camera = {"supported": ["corrupt_frame", "drop_connection", "frame_timeout"], "injected": []}
-        assert view["devices"]["camera"] == camera
-        # mistakes are 400s that say what is allowed
-        status, answer = post("/sim/faults", {"device": "welder", "fault": "no_gas"})
-        assert (
-            status == 400
-            and "no simulated device 'welder'; choose one of ['camera', 'robot', 'track']" in answer["error"]
-        )
-        status, answer = post("/sim/faults", {"device": "camera", "fault": "earthquake"})
-        assert status == 400 and "does not support fault 'earthquake'" in answer["error"]
-        status, answer = post("/sim/faults", {"device": "track", "fault": "track_fault"})
-        assert status == 400 and "needs code=" in answer["error"]
-        status, answer = post("/sim/faults", {"fault": "protective_stop"})
-        assert status == 400 and '"device"' in answer["error"]
-
-        # a protective stop in the fake controller: the driver reads it as it would on a real one
-        status, answer = post("/sim/faults", {"device": "robot", "fault": "protective_stop"})
-        assert status == 200 and answer == {"device": "robot", "fault": "protective_stop", "params": {}}
-        assert d.cell.robot.state().protective_stop
-        injected = request(f"{base}/sim/faults")[1]["devices"]["robot"]["injected"]
-        assert injected == [{"fault": "protective_stop", "params": {}}]
-        status, answer = post("/sim/faults/clear", {})
-        assert status == 200 and answer == {"cleared": ["camera", "robot", "track"]}
-        assert request(f"{base}/sim/faults")[1]["devices"]["robot"]["injected"] == []
-        assert d.cell.robot.state().protective_stop  # latched until an acknowledgement resets it, as on the robot
-        reasons = [e.reason for e in d.journal.events(None)]
-        assert "test fault injected into the simulated robot: protective_stop {}" in reasons
-        assert "test faults cleared in the simulated camera, robot, track" in reasons
-    assert d.arc_on_at_exit is False  # switched off once more and read back at shutdown
-
-
 # ---------------------------------------------------------------------------------------------- subprocess
 class Served:
     """``weldcell serve --no-sims`` as a child process, connected to simulators this test process runs."""
