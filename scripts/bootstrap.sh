@@ -63,6 +63,19 @@ case "$job" in
         exec .venv/bin/weldcell demo --out out
         ;;
     test)
+        # The operator page's browser test (tests/cell/test_operator_page.py) drives Debian's Chromium through
+        # Playwright (which downloads no browser of its own). Installed here for the test job only, as root (CI
+        # is); without it that test is skipped and says why. About 50 s and 110 MB of packages the first time.
+        if ! command -v chromium >/dev/null; then
+            if [ "$(id -u)" = 0 ]; then
+                say "installing chromium for the operator page's browser test"
+                { apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
+                    apt-get install -y -qq --no-install-recommends chromium >/dev/null; } \
+                    || say "could not install chromium: the browser test will be skipped"
+            else
+                say "chromium is not installed: the operator page's browser test will be skipped (apt-get install chromium)"
+            fi
+        fi
         say "ruff"
         .venv/bin/ruff check .
         say "mypy"

@@ -138,9 +138,7 @@ def test_the_page_drives_a_job_through_approval_welding_a_fault_and_its_acknowle
             expect(page.locator("#overlay-svg polyline[data-status=current]")).to_have_count(1)
             assert page.locator("#overlay-svg polyline[data-status=pending]").count() == n - 1
             expect(page.locator("#overlay-img")).to_have_attribute("src", _blob())
-            welding = shot("2-welding", "weld")
-            if os.environ.get("WELDCELL_DOCS_SCREENSHOT"):
-                (REPO / "docs" / "operator-page.png").write_bytes(welding)
+            shot("2-welding", "weld")
 
             # pause (arm still, arc off) and resume, from the page
             page.click("#pause")
@@ -151,6 +149,13 @@ def test_the_page_drives_a_job_through_approval_welding_a_fault_and_its_acknowle
             shot("3-paused", "pause")
             page.click("#resume")
             expect(page.locator("#state")).to_have_text("welding")
+            # on to the third seam: the first two are marked welded on the overlay
+            expect(page.locator("#seam-text")).to_contain_text(f"Seam 3 of {n}", timeout=30_000)
+            expect(page.locator("#seam-text")).to_contain_text("2 welded")
+            expect(page.locator("#overlay-svg polyline[data-status=welded]")).to_have_count(2)
+            welding = shot("4-two-welded", "weld")
+            if os.environ.get("WELDCELL_DOCS_SCREENSHOT"):  # the picture in docs/operator-page.md
+                (REPO / "docs" / "operator-page.png").write_bytes(welding)
 
             # a protective stop in the simulated controller: the page says what happened and what to do
             assert api(base, "/sim/faults", {"device": "robot", "fault": "protective_stop"})[0] == 200
@@ -161,7 +166,7 @@ def test_the_page_drives_a_job_through_approval_welding_a_fault_and_its_acknowle
             expect(page.locator("#fault-action")).to_contain_text("then press Acknowledge")
             expect(page.locator("#acknowledge")).to_be_enabled()
             expect(page.locator("#arc")).to_have_text("off")
-            shot("4-fault", "fault")
+            shot("5-fault", "fault")
             assert api(base, "/sim/faults/clear", {})[0] == 200
             page.click("#acknowledge")
             expect(page.locator("#state")).to_have_text("idle", timeout=15_000)
@@ -172,12 +177,12 @@ def test_the_page_drives_a_job_through_approval_welding_a_fault_and_its_acknowle
             cells = row.locator("td").all_inner_texts()
             assert cells[0] == str(job_id) and cells[2] == "failed" and cells[3] == "fault"
             assert cells[5] == (f"{round(view) // 60} min {round(view) % 60} s" if view >= 59.5 else f"{round(view)} s")
-            shot("5-acknowledged", "idle")
+            shot("6-acknowledged", "idle")
             assert errors == []
         finally:
             browser.close()
     assert sorted(p.name for p in shots.iterdir()) == [
-        "1-idle.png", "2-welding.png", "3-paused.png", "4-fault.png", "5-acknowledged.png",
+        "1-idle.png", "2-welding.png", "3-paused.png", "4-two-welded.png", "5-fault.png", "6-acknowledged.png",
     ]  # fmt: skip
 
 
