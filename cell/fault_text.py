@@ -99,8 +99,9 @@ def explain_fault(reason: str | None) -> FaultText | None:
             "Read the cause below and the job's journal (GET /jobs/{id}), fix it, " + _ACK + ".",
         ),
     )
-    if stop_failed:
-        sentence = sentence.rstrip(".") + ", but the stop or the arc-off was not confirmed by the robot."
+    if stop_failed:  # the rule's sentence says the arm is still and the arc off: that is not known here
+        what = re.split(r":|;|, so ", sentence, maxsplit=1)[0].rstrip(".")
+        sentence = what + ", and the stop or the arc-off was not confirmed by the robot."
         action = "Switch the welder off at its own switch and check the robot first; " + action
     return FaultText(sentence=sentence, cause=_capital(cause.strip().rstrip(".")) + ".", action=action,
                      stop_failed=stop_failed)  # fmt: skip

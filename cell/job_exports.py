@@ -10,6 +10,8 @@ When a job that planned a path ends, :func:`save_job_result` keeps in ``<results
   same planner call gives the same path again (checked against the job's stored report);
 - ``cloud.npy``: the captures' points near the seams (world frame, metres), for the 3D views.
 
+The newest :data:`KEEP_RESULTS` jobs' results are kept (:func:`prune_results`).
+
 :func:`export_job` writes one format into a fresh temporary folder and returns the bytes to send with their
 media type: a program (one per track position: a zip when there are several), the ROS 2 bag folder (zipped), the
 binary glTF or the HTML page.
@@ -58,6 +60,10 @@ FORMATS: dict[str, tuple[str, str]] = {
 ZIP_TYPE = "application/zip"
 
 
+KEEP_RESULTS = 200
+"""How many jobs' results are kept (the newest; about 1 MB each): older jobs answer 409 like a job without a path."""
+
+
 class NothingToExport(Exception):
     """The job has no kept result (it planned no path, or it ran before results were kept)."""
 
@@ -101,7 +107,19 @@ def save_job_result(folder: Path, data: JobData) -> Path | None:
     }
     (folder / "plan.json").write_text(json.dumps(plan, indent=1), encoding="utf-8")
     np.save(folder / "cloud.npy", _cloud_near(data, np.concatenate([s.points for s in seams])))
+    prune_results(folder.parent)
     return folder
+
+
+def prune_results(results: Path, keep: int = KEEP_RESULTS) -> list[int]:
+    """Remove all but the ``keep`` newest (highest job id) result folders under ``results``; the ids removed."""
+    import shutil
+
+    ids = sorted(int(p.name) for p in results.iterdir() if p.is_dir() and p.name.isdigit())
+    old = ids[: max(0, len(ids) - keep)]
+    for job_id in old:
+        shutil.rmtree(results / str(job_id), ignore_errors=True)
+    return old
 
 
 def _cloud_near(data: JobData, seam_points: np.ndarray) -> np.ndarray:

@@ -388,9 +388,9 @@ class DaemonSoak:
                 self.fail(f"{where}: the fault was never injected (no arc on seen)")
         metrics = str(self.client.get("/metrics"))
         for outcome, n in expected_outcomes.items():
-            line = f'weldcell_jobs_finished_total{{outcome="{outcome}"}} {n}'
+            line = f'weldcell_jobs_finished_total{{outcome="{outcome}"}} {float(n)}'  # prometheus-client: 3.0
             if line not in metrics:
-                found = re.findall(rf'weldcell_jobs_finished_total{{outcome="{outcome}"}} \d+', metrics)
+                found = re.findall(rf'weldcell_jobs_finished_total{{outcome="{outcome}"}} [\d.]+', metrics)
                 self.fail(f"/metrics: want {line!r}, got {found}")
 
     def probe_sigterm(self, *, mid_weld: bool, timeout_s: float) -> None:

@@ -84,8 +84,12 @@ def test_a_stop_that_was_not_confirmed_says_so_and_asks_for_the_welder_switch():
     text = explain_fault(reason)
     assert text is not None and text.stop_failed is True
     assert text.sentence == (
-        "The robot stopped itself (protective stop): the arm is still and the arc is off, but the stop or the "
-        "arc-off was not confirmed by the robot."
+        "The robot stopped itself (protective stop), and the stop or the arc-off was not confirmed by the robot."
+    )
+    lost = explain_fault("watchdog: no status from the robot or the track within 0.6 s; stopping failed: x")
+    assert lost is not None
+    assert lost.sentence == (
+        "The cell lost contact with a device, and the stop or the arc-off was not confirmed by the robot."
     )
     assert text.cause == "Robot: protective stop (x)."
     assert text.action.startswith("Switch the welder off at its own switch")

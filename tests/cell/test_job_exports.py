@@ -129,3 +129,15 @@ def test_unknown_unfinished_and_empty_jobs_are_refused(welded: tuple[Daemon, str
     status, _ctype, body = get(base, f"/jobs/{empty}/export/gltf")
     assert status == 409 and "no kept result" in json.loads(body)["error"]
     assert request(f"{base}/acknowledge", method="POST", body=b'{"operator": "t"}', headers=AUTH)[0] == 200
+
+
+def test_only_the_newest_results_are_kept(tmp_path: Path) -> None:
+    from cell.job_exports import prune_results
+
+    for job_id in (3, 12, 7, 100, 9):
+        (tmp_path / str(job_id)).mkdir()
+        (tmp_path / str(job_id) / "plan.json").write_text("{}")
+    (tmp_path / "notes").mkdir()
+    assert prune_results(tmp_path, keep=2) == [3, 7, 9]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["100", "12", "notes"]
+    assert prune_results(tmp_path, keep=2) == []
