@@ -27,7 +27,8 @@ def test_the_wheel_takes_every_file_of_the_sample_and_the_checkout_path_still_wo
     data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
     package_dir = Path(cell.__file__).parent
     shipped = {p for pattern in data["cell"] for p in package_dir.glob(pattern) if p.is_file()}
-    assert {p.name for p in shipped} == CAPTURE_FILES  # setuptools globs package-data the same way
+    # setuptools globs package-data the same way; the operator page (cell.operator_page) ships beside the sample
+    assert {p.name for p in shipped} == CAPTURE_FILES | {"operator_page.html"}
     assert (REPO / "samples" / "ribs").resolve() == sample_capture_dir().resolve()
 
 
