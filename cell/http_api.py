@@ -404,8 +404,12 @@ def _protocol(header_timeout_s: float) -> type[H11Protocol]:  # long: one class,
             # transport at once); the connection closes after that response, or by the timers
             self._client_done = True
             idle = self.cycle is None or self.cycle.response_complete
-            if idle and self.conn.their_state is h11.IDLE and not self._partial():
-                self.transport.close()
+            if idle and self.conn.their_state is h11.IDLE:
+                if self._partial():  # a request head the client can no longer finish: answer now, not at the timer
+                    self._disarm()
+                    self._close_with(400, "Bad Request", "the client ended the connection inside a request's headers")
+                else:
+                    self.transport.close()
             return True
 
         def send_400_response(self, msg: str) -> None:
@@ -443,9 +447,13 @@ def _protocol(header_timeout_s: float) -> type[H11Protocol]:  # long: one class,
             if self.conn.our_state is h11.IDLE and self.conn.their_state is h11.IDLE and not self._partial():
                 self.transport.close()  # an idle keep-alive connection: just close it
                 return
-            body = json.dumps({"error": f"the request did not arrive within {header_timeout_s:.0f} s"}).encode()
+            self._close_with(408, "Request Timeout", f"the request did not arrive within {header_timeout_s:.0f} s")
+
+        def _close_with(self, status: int, phrase: str, message: str) -> None:
+            # written by hand: h11 sends no response before it has read a request
+            body = json.dumps({"error": message}).encode()
             head = (
-                "HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\n"
+                f"HTTP/1.1 {status} {phrase}\r\ncontent-type: application/json\r\n"
                 f"content-length: {len(body)}\r\nconnection: close\r\n\r\n"
             )
             self.transport.write(head.encode() + body)

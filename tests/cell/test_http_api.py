@@ -429,6 +429,16 @@ def test_any_request_gets_a_complete_answer_and_leaves_the_cell_safe(
     assert_cell_safe(served)
 
 
+@pytest.mark.timeout(30)
+def test_a_client_that_half_closes_inside_the_headers_gets_400_at_once(served: Served) -> None:
+    t0 = time.monotonic()
+    [(status, headers, body)] = served.raw(f"GET /status HTTP/1.1\r\nHost: 127.0.0.1:{served.port}\r\nX-A".encode())
+    assert status == 400 and headers["connection"] == "close"
+    assert json.loads(body) == {"error": "the client ended the connection inside a request's headers"}
+    assert time.monotonic() - t0 < REQUEST_TIMEOUT_S / 2  # not at the header timer
+    assert request(f"{served.base}/status")[0] == 200
+
+
 @pytest.mark.timeout(300)
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(garbage=st.binary(min_size=1, max_size=300))
