@@ -5,7 +5,8 @@ stop, an emergency stop, a track fault or an unreachable device into ``fault_now
 arc off at once, from its thread). While the robot moves (:data:`MOTION_STATES`) a device whose status has not come
 back within ``answer_timeout_s`` is a fault too: the poll runs in a thread of its own, so a device that hangs cannot
 hold the watchdog up. Each poll's readings are kept (:attr:`DeviceWatchdog.last`) for the status view; between jobs
-:meth:`DeviceWatchdog.read` takes a fresh one on demand.
+:meth:`DeviceWatchdog.read` takes a fresh one on demand, in a thread of its own: a status request never waits for a
+device that does not answer.
 """
 
 from __future__ import annotations
@@ -104,6 +105,7 @@ class DeviceWatchdog:
         self._thread: threading.Thread | None = None
         self._fired = False
         self._read_lock = threading.Lock()
+        self._pending: threading.Thread | None = None
         self.last: DeviceReadings | None = None
         """The last readings taken (by the watchdog's poll or :meth:`read`)."""
 
@@ -119,14 +121,24 @@ class DeviceWatchdog:
         if thread is not None:
             thread.join(timeout=10.0)
 
-    def read(self, max_age_s: float = 0.5) -> DeviceReadings:
-        """The readings at most ``max_age_s`` old: the last ones, or a fresh poll (one at a time)."""
+    def read(self, max_age_s: float = 0.5, *, wait_s: float = 0.25) -> DeviceReadings | None:
+        """Readings at most ``max_age_s`` old if there are any, never blocking for longer than ``wait_s``: while a job
+        runs, the watchdog's own last poll (it polls every period; none beside it); between jobs a fresh poll in a
+        thread of its own (one at a time). A device that does not answer in time leaves the last readings (their
+        ``time_s`` says how old) or None."""
+        last = self.last
+        if (last is not None and time.time() - last.time_s <= max_age_s) or self._thread is not None:
+            return last
         with self._read_lock:
-            last = self.last
-            if last is not None and time.time() - last.time_s <= max_age_s:
-                return last
-            self.last = read_devices(self.cell)
-            return self.last
+            pending = self._pending
+            if pending is None or not pending.is_alive():
+                pending = self._pending = threading.Thread(target=self._fresh, name="cell-device-read", daemon=True)
+                pending.start()
+        pending.join(wait_s)
+        return self.last
+
+    def _fresh(self) -> None:
+        self.last = read_devices(self.cell)
 
     def _poll(self) -> str | None:
         readings = read_devices(self.cell)

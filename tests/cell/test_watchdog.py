@@ -120,9 +120,30 @@ def test_nothing_is_polled_while_paused_and_a_protective_stop_is_noticed_within_
     assert isinstance(dog.last, DeviceReadings) and dog.last.robot is not None and dog.last.robot.protective_stop
 
 
-def test_read_takes_fresh_readings_only_when_the_last_are_too_old() -> None:
+def test_read_takes_fresh_readings_only_when_the_last_are_too_old_and_never_waits_for_a_hung_device() -> None:
     robot = Robot()
     dog, _ = make(robot, S.IDLE)
     first = dog.read(max_age_s=10.0)
+    assert first is not None and first.robot is not None
     assert dog.read(max_age_s=10.0) is first and robot.calls == 1
-    assert dog.read(max_age_s=0.0) is not first and robot.calls == 2
+    second = dog.read(max_age_s=0.0)
+    assert second is not first and robot.calls == 2
+    robot.hang.set()  # the next poll takes 2 s
+    t0 = time.monotonic()
+    assert dog.read(max_age_s=0.0, wait_s=0.2) is second  # the last readings, at once; their time says how old
+    assert time.monotonic() - t0 < 0.5
+    assert dog.read(max_age_s=0.0, wait_s=0.2) is second and robot.calls == 3  # one poll at a time
+
+
+@pytest.mark.timeout(20)
+def test_while_a_job_runs_read_polls_nothing_beside_the_watchdog() -> None:
+    robot = Robot()
+    dog, _ = make(robot, S.PAUSED)  # the watchdog runs (a job is on) but does not poll while paused
+    dog.start()
+    try:
+        assert dog.read(max_age_s=0.0) is None and robot.calls == 0
+        time.sleep(0.1)
+        assert robot.calls == 0
+    finally:
+        dog.stop()
+    assert dog.read(max_age_s=0.0) is not None and robot.calls == 1  # the job over: read polls again
