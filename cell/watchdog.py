@@ -123,12 +123,14 @@ class DeviceWatchdog:
 
     def read(self, max_age_s: float = 0.5, *, wait_s: float = 0.25) -> DeviceReadings | None:
         """Readings at most ``max_age_s`` old if there are any, never blocking for longer than ``wait_s``: while a job
-        runs, the watchdog's own last poll (it polls every period; none beside it); between jobs a fresh poll in a
-        thread of its own (one at a time). A device that does not answer in time leaves the last readings (their
-        ``time_s`` says how old) or None."""
+        runs and the watchdog polls, its own last poll (none beside it); otherwise (between jobs, paused) a fresh
+        poll in a thread of its own (one at a time). A device that does not answer in time leaves the last
+        readings (their ``time_s`` says how old) or None."""
         last = self.last
-        if (last is not None and time.time() - last.time_s <= max_age_s) or self._thread is not None:
+        if last is not None and time.time() - last.time_s <= max_age_s:
             return last
+        if self._thread is not None and self._state() not in (*FINAL_STATES, S.PAUSED) and not self._fired:
+            return last  # the watchdog itself polls now: nothing beside it
         with self._read_lock:
             pending = self._pending
             if pending is None or not pending.is_alive():

@@ -148,7 +148,9 @@ def test_the_page_drives_a_job_through_approval_welding_a_fault_and_its_acknowle
             if os.environ.get("WELDCELL_DOCS_SCREENSHOT"):  # the picture in docs/operator-page.md
                 (REPO / "docs" / "operator-page.png").write_bytes(welding)
 
-            # pause (arm still, arc off) and resume, from the page
+            # pause (arm still, arc off) and resume, from the page, while the arc is on: in the middle of a seam's
+            # travel (a pause that falls between two motions is not applied before the weld activity returns)
+            expect(page.locator("#arc")).to_have_text("ON", timeout=10_000)
             page.click("#pause")
             expect(page.locator("#message")).to_contain_text("pause: done", timeout=10_000)
             expect(page.locator("#state")).to_have_text("paused")

@@ -136,14 +136,18 @@ def test_read_takes_fresh_readings_only_when_the_last_are_too_old_and_never_wait
 
 
 @pytest.mark.timeout(20)
-def test_while_a_job_runs_read_polls_nothing_beside_the_watchdog() -> None:
+def test_while_the_watchdog_polls_read_polls_nothing_beside_it_but_it_does_while_paused() -> None:
     robot = Robot()
-    dog, _ = make(robot, S.PAUSED)  # the watchdog runs (a job is on) but does not poll while paused
-    dog.start()
+    faults: list[str] = []
+    state = {"now": S.WELDING}
+    dog = DeviceWatchdog(SimpleNamespace(robot=robot, track=None), state=lambda: state["now"],  # type: ignore[arg-type]
+                         fault_now=faults.append, period_s=30.0, answer_timeout_s=0.3)  # fmt: skip
+    dog.start()  # its first poll comes after 30 s
     try:
         assert dog.read(max_age_s=0.0) is None and robot.calls == 0
-        time.sleep(0.1)
-        assert robot.calls == 0
+        state["now"] = S.PAUSED  # the watchdog does not poll while paused: the view must not go stale
+        readings = dog.read(max_age_s=0.0)
+        assert readings is not None and robot.calls == 1
     finally:
         dog.stop()
-    assert dog.read(max_age_s=0.0) is not None and robot.calls == 1  # the job over: read polls again
+    assert faults == []
