@@ -45,7 +45,14 @@ from typing import Any, TypeVar
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from drivers.fanuc_protocol import MAX_INSTRUCTIONS_IN_FLIGHT, POSITION_KEYS, TERMINATOR, ErrorID, Packet
+from drivers.fanuc_protocol import (
+    DEFAULT_CONFIGURATION,
+    MAX_INSTRUCTIONS_IN_FLIGHT,
+    POSITION_KEYS,
+    TERMINATOR,
+    ErrorID,
+    Packet,
+)
 from sim_fakes.fanuc_program import HeartbeatProgram, InstructionRecord, Segment, instruction_record, parse_packet
 from sim_fakes.loop_thread import LoopThreadFake
 
@@ -653,17 +660,8 @@ class FakeFanucController(LoopThreadFake):
         return tuple(float(v) for v in (*self._p_mm, *wpr))
 
     def _configuration(self) -> dict[str, int]:
-        return {
-            "UToolNumber": self._utool,
-            "UFrameNumber": self._uframe,
-            "Front": 1,
-            "Up": 1,
-            "Left": 0,
-            "Flip": 0,
-            "Turn4": 0,
-            "Turn5": 0,
-            "Turn6": 0,
-        }
+        # the simulated arm stands in the wire format's default configuration, with its active frames
+        return {**DEFAULT_CONFIGURATION, "UToolNumber": self._utool, "UFrameNumber": self._uframe}
 
     def _time_tag(self) -> int:
         return int((time.monotonic() - self._t0) * 1000.0)
