@@ -548,13 +548,12 @@ def _merge_coaxial(p: FloatArray, lab: NDArray[np.int32], surfaces: list[Surface
     """Cylinder pieces of one pipe (strips on either side of a highlight or a cap's rim) become one: the larger
     piece's cylinder runs through the smaller one within the noise. Appends to ``surfaces``, relabels ``lab``
     and adds the merged pieces to ``gone``, in place."""
-    new_surfaces = surfaces
-    cyl_ids = [s.label for s in new_surfaces if s.kind == "cylinder" and s.label not in gone]
+    cyl_ids = [s.label for s in surfaces if s.kind == "cylinder" and s.label not in gone]
     for i, a in enumerate(cyl_ids):
         for b in cyl_ids[i + 1 :]:
             if a in gone or b in gone:
                 continue
-            A, B = new_surfaces[a], new_surfaces[b]
+            A, B = surfaces[a], surfaces[b]
             if abs(float(A.axis @ B.axis)) < np.cos(np.radians(10.0)):
                 continue
             big, small = (A, B) if A.n_points >= B.n_points else (B, A)
@@ -567,11 +566,11 @@ def _merge_coaxial(p: FloatArray, lab: NDArray[np.int32], surfaces: list[Surface
             q = p.reshape(-1, 3)[idx]
             zc = float(np.median(q[:, 2]))
             tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
-            found = _try_cylinder(q, normals.reshape(-1, 3)[idx], tol, len(new_surfaces), zc,
+            found = _try_cylinder(q, normals.reshape(-1, 3)[idx], tol, len(surfaces), zc,
                                   float(noise.spacing_m(zc)), 0.85, sp.min_pixels, sp)  # fmt: skip
             if found is None:
                 continue
-            new_surfaces.append(found[0])
+            surfaces.append(found[0])
             lab.reshape(-1)[idx] = -1
             lab.reshape(-1)[idx[found[1]]] = found[0].label
             gone.update((a, b))
