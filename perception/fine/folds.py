@@ -57,7 +57,7 @@ def contact_points(p: FloatArray, labels: NDArray[np.int32], pair: Pair) -> tupl
 def joint_type(na: FloatArray, nb: FloatArray, up: FloatArray, standing_height_m: float, lap_height_m: float) -> Joint:
     """Name a fold by how its faces stand relative to ``up`` (the support's normal)."""
     ca, cb = abs(float(na @ up)), abs(float(nb @ up))
-    if ca < 0.5 and cb < 0.5:
+    if ca < 0.3 and cb < 0.3:  # both faces stand within about 17 degrees of vertical
         return "inside_corner"
     if 0.3 < ca < 0.97 and 0.3 < cb < 0.97:
         return "v_groove"

@@ -19,13 +19,14 @@ from perception.fine.runs import covered_runs
 from perception.fine.surfaces import _fit_plane, axis_basis, circle_across
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
 
+COPY_SHARE = 0.25  # see _others_residual
+
 
 @dataclass(frozen=True)
 class RefineParams:
     band_m: float = 0.020
     inlier_sigma: float = 3.5
     corner_sigma: float = 3.0  # the fits leave out points this many sigma (plus a spacing) from the corner
-    open_root_m: float = 0.0006  # both faces stop this far short of their intersection: an open root
     iterations: int = 3
     end_near_m: float = 0.0015  # support for the ends: points this close to the seam (plus noise, spacing)
     end_bin_m: float = 0.001
@@ -35,6 +36,12 @@ class RefineParams:
 
 def near_points(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatArray, band_m: float) -> FloatArray:
     """Full-resolution points (N, 3) in the image box of ``curve`` grown by ``band_m`` at its range."""
+    return _near_box(full, intr, curve, band_m)[0]
+
+
+def _near_box(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatArray,
+              band_m: float) -> tuple[FloatArray, NDArray[np.int64]]:  # fmt: skip
+    """:func:`near_points`, and each point's pixel (row, column) in ``full``."""
     uv = intr.project(curve)
     z = float(np.median(curve[:, 2]))
     m = int(np.ceil(band_m * intr.fx / max(z, 1e-3))) + 2
@@ -42,9 +49,38 @@ def near_points(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatA
     u0, u1 = int(max(np.floor(uv[:, 0].min()) - m, 0)), int(min(np.ceil(uv[:, 0].max()) + m + 1, W))
     v0, v1 = int(max(np.floor(uv[:, 1].min()) - m, 0)), int(min(np.ceil(uv[:, 1].max()) + m + 1, H))
     if u0 >= u1 or v0 >= v1:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), np.zeros((0, 2), dtype=np.int64)
     q = full[v0:v1, u0:u1].reshape(-1, 3)
-    return np.asarray(q[np.isfinite(q[:, 2])], dtype=np.float64)
+    vv, uu = np.mgrid[v0:v1, u0:u1]
+    ok = np.isfinite(q[:, 2])
+    px = np.stack([vv.ravel()[ok], uu.ravel()[ok]], axis=1)
+    return np.asarray(q[ok], dtype=np.float64), px
+
+
+def _others_residual(q: FloatArray, px: NDArray[np.int64], surfaces: SurfaceSet, pair: tuple[int, int],
+                     noise: NoiseModel) -> FloatArray:  # fmt: skip
+    """Per point, the smallest |residual| to any other segmented surface present in the points' box (inf where
+    there is none): a point another surface explains better than either of the pair's (the plate's top face
+    beyond a bevel's convex edge, the floor seen through a root gap) does not belong in their fits. A surface
+    that explains better a good part of what the pair explains within the noise is a near-copy of one of
+    its faces (a fragment the segmentation left apart), not another surface, and is not counted: choosing
+    between two near-copies of a face would bias its fit."""
+    f = surfaces.factor
+    h, w = surfaces.labels.shape
+    lab = surfaces.labels[np.minimum(px[:, 0] // f, h - 1), np.minimum(px[:, 1] // f, w - 1)]
+    ra, rb = (np.abs(surfaces.surfaces[i].residual(q)) for i in pair)
+    sig = noise.sigma_m(q[:, 2])
+    own = [(ra <= rb) & (ra <= 4.0 * sig), (rb < ra) & (rb <= 4.0 * sig)]  # what each face explains
+    r_pair = np.minimum(ra, rb)
+    best = np.full(len(q), np.inf)
+    for k in np.unique(lab):
+        if k < 0 or k in pair or k >= len(surfaces.surfaces):
+            continue
+        r = np.abs(surfaces.surfaces[int(k)].residual(q))
+        if any(np.count_nonzero(m & (r < r_pair)) > COPY_SHARE * np.count_nonzero(m) for m in own):
+            continue
+        best = np.minimum(best, r)
+    return best
 
 
 def _side(surface: Surface, other: Surface, p0: FloatArray, u: FloatArray, ref: FloatArray) -> FloatArray:
@@ -68,13 +104,14 @@ def refine_seams(
     out: list[SeamCurve] = []
     used = 0
     for s in seams:
-        q = near_points(full, intr, s.points, rp.band_m)
+        q, px = _near_box(full, intr, s.points, rp.band_m)
         used += len(q)
         A, B = surfaces.surfaces[s.surfaces[0]], surfaces.surfaces[s.surfaces[1]]
         if s.joint == "butt" or (A.kind == B.kind == "plane" and abs(float(A.normal @ B.normal)) > np.cos(0.17)):
             out.append(s)  # gaps and steps are placed at full resolution by their own steps
         elif s.kind == "linear" and A.kind == "plane" and B.kind == "plane":
-            out.append(_refine_line(s, q, A, B, noise_full, rp))
+            others = _others_residual(q, px, surfaces, s.surfaces, noise_full)
+            out.append(_refine_line(s, q, others, A, B, noise_full, rp))
         elif s.kind == "curved":
             out.append(_refine_ring(s, q, A, B, noise_full, rp))
         else:
@@ -82,7 +119,7 @@ def refine_seams(
     return out, used
 
 
-def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: NoiseModel,
+def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B: Surface, noise: NoiseModel,
                  rp: RefineParams) -> SeamCurve:  # fmt: skip
     p0, p1 = s.points[0], s.points[-1]
     length = float(np.linalg.norm(p1 - p0))
@@ -92,7 +129,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
     d = q - p0
     t = d @ u
     inside = (t >= -0.002) & (t <= length + 0.002)
-    q, t = q[inside], t[inside]
+    q, t, others = q[inside], t[inside], others[inside]
     if len(q) < 20:
         return s
     sig = noise.sigma_m(q[:, 2])
@@ -110,8 +147,11 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
         tl = dl @ u
         dist = np.sqrt(np.maximum((dl * dl).sum(axis=1) - tl * tl, 0.0))
         clear = dist > rp.corner_sigma * sig + spacing
-        side_a = (ra <= rb) & (da > -0.0005) & (da <= rp.band_m) & clear
-        side_b = (rb < ra) & (db > -0.0005) & (db <= rp.band_m) & clear
+        # a point another surface explains better is not this pair's (fragments of the pair's own faces are
+        # not among the others: choosing between two near-copies of a face would bias its fit)
+        mine = np.minimum(ra, rb) <= others
+        side_a = (ra <= rb) & mine & (da > -0.0005) & (da <= rp.band_m) & clear
+        side_b = (rb < ra) & mine & (db > -0.0005) & (db <= rp.band_m) & clear
         # each face's own noise (a face seen obliquely is noisier): gating it at the capture's typical
         # sigma would cut one tail of its residuals and tilt the plane
         on_a = side_a & (ra <= rp.inlier_sigma * _face_sigma(ra[side_a], sig, side_a))
@@ -130,19 +170,19 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
         line0, u = line
         va = _side(a, b, line0, u, line0 + va)
         vb = _side(b, a, line0, u, line0 + vb)
-    # open root: neither face reaches the intersection; the seam is the middle of their facing edges (each
-    # face's points on it, the corner zone included)
+    # a V-groove's open root: the two bevels stop short of their intersection and the camera sees through
+    # between them; the seam is the middle of their lower edges (the other folds' seam is the intersection)
     ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
     da, db = (q - line0) @ va, (q - line0) @ vb
     all_a = (ra <= rb) & (da > -0.0005) & (da <= rp.band_m) & (ra <= rp.inlier_sigma * sig)
     all_b = (rb < ra) & (db > -0.0005) & (db <= rp.band_m) & (rb <= rp.inlier_sigma * sig)
     if all_a.sum() < 10 or all_b.sum() < 10:
         return s
-    ea = float(np.percentile(da[all_a], 2))
-    eb = float(np.percentile(db[all_b], 2))
     gap = 0.0
-    if _open_root(q, line0, u, va, vb, a, b, ea, eb, sig, spacing, (p0, p1), rp):
-        edge_a, edge_b = line0 + ea * va, line0 + eb * vb
+    edges = None if s.joint != "v_groove" else _root_edges(q, line0, u, va, vb, a, b, sig, spacing, (p0, p1),
+                        max_reach_m=min(float(np.median(da[all_a])), float(np.median(db[all_b]))), rp=rp)  # fmt: skip
+    if edges is not None:
+        edge_a, edge_b = line0 + edges[0] * va, line0 + edges[1] * vb
         gap = float(np.linalg.norm(edge_b - edge_a))
         line0 = 0.5 * (edge_a + edge_b)
     ends = _supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
@@ -155,34 +195,60 @@ def _refine_line(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: Noi
                    support=int(on_a.sum() + on_b.sum()), rms_m=rms, gap_m=gap)  # fmt: skip
 
 
-def _open_root(q: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray, vb: FloatArray, a: Surface,
-               b: Surface, ea: float, eb: float, sig: FloatArray, spacing: FloatArray,
-               ends: tuple[FloatArray, FloatArray], rp: RefineParams) -> bool:  # fmt: skip
-    """Whether both faces stop short of their intersection because the root is open (a V-groove's root gap).
-    Near a closed corner each face's nearest points come within about a sample of it; stopping short alone
-    may also be missing data (a stereo shadow, the root hidden by a bevel), so an open root also needs points
-    seen through it: between the two faces' edges and behind the chord that joins them, along a good part
-    of the seam."""
-    s_typ, sp_typ = float(np.median(sig)), float(np.median(spacing))
-    if min(ea, eb) <= max(rp.open_root_m, 3.0 * s_typ + 0.5 * sp_typ):
-        return False
-    edge_a, edge_b = line0 + ea * va, line0 + eb * vb
-    chord = edge_b - edge_a
-    half = 0.5 * float(np.linalg.norm(chord))
-    x = chord / max(2.0 * half, 1e-12)
-    out = a.normal + b.normal  # out of the groove, towards the camera side of both faces
-    out -= (out @ u) * u
-    out /= max(float(np.linalg.norm(out)), 1e-12)
-    rel = q - 0.5 * (edge_a + edge_b)
-    off_both = (np.abs(a.residual(q)) > 3.0 * sig) & (np.abs(b.residual(q)) > 3.0 * sig)
-    through = (np.abs(rel @ x) < half) & off_both & (rel @ out < sig)
+def _root_edges(q: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray, vb: FloatArray, a: Surface,
+                b: Surface, sig: FloatArray, spacing: FloatArray, ends: tuple[FloatArray, FloatArray], *,
+                max_reach_m: float, rp: RefineParams) -> tuple[float, float] | None:  # fmt: skip
+    """Where each face's lower edge lies (its distance from the intersection along the face) when the root
+    between them is open; None when it is closed.
+
+    Each pixel's ray crosses a face's plane somewhere. A point on the plane where its ray crosses it is
+    evidence of the face there; a point clearly behind the plane (the floor or the far root face seen
+    through an open root) says the ray passed the plane there without meeting the face. Going down a face
+    towards the intersection, the face ends where the passing rays begin to outnumber the meeting ones
+    (the floor seen through the gap crosses the plane's extension further down and is no evidence of the
+    face). The crossings depend on the pixels' rays and the fitted planes, not on the points' noisy depths.
+    The two plates' root faces are taken as equally high, so one face's edge places the other's when the
+    view shows only one. Missing data near the root (a shadow, the root hidden behind a bevel) is no
+    evidence either way and leaves the root closed; so is a groove whose noise hides its root gap."""
+    rel = q - line0
+    t = rel @ u
     t0, t1 = sorted(float((e - line0) @ u) for e in ends)
+    rays = q / np.linalg.norm(q, axis=1, keepdims=True)
+    width = max(0.5 * float(np.median(spacing)), 1e-4)
     step = 2.0 * rp.end_bin_m
-    bins = max(1, int(np.ceil((t1 - t0) / step)))
-    k = np.floor(((q[through] - line0) @ u - t0) / step).astype(int)
-    hit = np.zeros(bins, bool)
-    hit[k[(k >= 0) & (k < bins)]] = True
-    return bool(hit.mean() >= 0.3)
+    bins_t = max(1, int(np.ceil((t1 - t0) / step)))
+    up = a.normal + b.normal
+    up -= (up @ u) * u
+    up /= max(float(np.linalg.norm(up)), 1e-12)
+    levels = []
+    for S, v in ((a, va), (b, vb)):
+        res = q @ S.normal + S.offset
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s_on = ((-S.offset / (rays @ S.normal))[:, None] * rays - line0) @ v
+        keep = np.isfinite(s_on) & (s_on >= 0.0) & (s_on < max_reach_m) & (t >= t0) & (t <= t1)
+        edges = np.arange(0.0, max_reach_m + width, width)
+        n_face = np.histogram(s_on[keep & (np.abs(res) <= 2.0 * sig)], bins=edges)[0]
+        free = keep & (res < -3.0 * sig)
+        n_free = np.histogram(s_on[free], bins=edges)[0]
+        passing = np.flatnonzero((n_free >= 3) & (n_free >= n_face))
+        if passing.size == 0:
+            continue
+        reach = float(edges[passing[-1] + 1])
+        k = np.floor((t[free & (s_on <= reach)] - t0) / step).astype(int)
+        if np.unique(np.clip(k, 0, bins_t - 1)).size < 0.3 * bins_t:
+            continue
+        levels.append(reach * float(v @ up))
+    # a flat bottom seen inside the groove (the table through a gap with no root face): the root is no lower
+    res_a, res_b = q @ a.normal + a.offset, q @ b.normal + b.offset
+    h = rel @ up
+    bottom = (res_a > 3.0 * sig) & (res_b > 3.0 * sig) & (h < 0.5 * max_reach_m) & (t >= t0) & (t <= t1)
+    k = np.floor((t[bottom] - t0) / step).astype(int)
+    if bottom.sum() >= 3 and np.unique(np.clip(k, 0, bins_t - 1)).size >= 0.3 * bins_t:
+        levels = [max(float(np.mean(levels)) if levels else 0.0, float(np.median(h[bottom])))]
+    if not levels:
+        return None
+    level = float(np.mean(levels))
+    return level / max(float(va @ up), 1e-6), level / max(float(vb @ up), 1e-6)
 
 
 def _face_sigma(res: FloatArray, sig: FloatArray, side: NDArray[np.bool_]) -> FloatArray:

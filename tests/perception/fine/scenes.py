@@ -65,10 +65,10 @@ def lap(*, behind: bool = False) -> Scene:
     return scene_of((lower, upper), eye=eye, target=(0.0, 0.02, 0.0))
 
 
-def v_groove(*, gap: float = 0.0, root: float = 0.0) -> Scene:
+def v_groove(*, gap: float = 0.0, root: float = 0.0, near: bool = False) -> Scene:
     """Two 12 mm plates with 30-degree bevels (from the vertical) meeting at a V, its root ``root`` above
     the plates' bottom, with a ``gap`` between their root faces; seen from 0.6 m, so that each bevel is a
-    strip about five pixels wide."""
+    strip about five pixels wide (``near``: from 0.35 m, so that the gap is two pixels wide)."""
     t, beta, w, length = 0.012, np.radians(30.0), 0.10, 0.20
     run = (t - root) * np.tan(beta)
 
@@ -79,7 +79,8 @@ def v_groove(*, gap: float = 0.0, root: float = 0.0) -> Scene:
 
     left = hull("left", prism(section(1.0), length))
     right = hull("right", prism(section(-1.0), length))
-    cam = CameraSetup(eye=(0.12, -0.30, 0.52), target=(0.0, 0.0, 0.0), width=640, height=360, fx=460.0, fy=460.0)
+    eye = (0.05, -0.15, 0.31) if near else (0.12, -0.30, 0.52)
+    cam = CameraSetup(eye=eye, target=(0.0, 0.0, 0.0), width=640, height=360, fx=460.0, fy=460.0)
     faces = []
     for part, nx in ((left, np.cos(beta)), (right, -np.cos(beta))):
         n = np.array([nx, 0.0, np.sin(beta)])
@@ -97,7 +98,8 @@ def v_groove(*, gap: float = 0.0, root: float = 0.0) -> Scene:
 @cache
 def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
     sc = {"tee": tee, "pipe": pipe, "thin_pipe_far": lambda: pipe(0.015, view_scale=1.8), "butt": butt,
-          "lap": lap, "lap_behind": lambda: lap(behind=True), "v_groove": v_groove}[name]()  # fmt: skip
+          "lap": lap, "lap_behind": lambda: lap(behind=True), "v_groove": v_groove,
+          "v_groove_open": lambda: v_groove(gap=0.0016, root=0.001, near=True)}[name]()  # fmt: skip
     if noise == "stereo":
         return render(sc, noise="stereo", seed=seed, sensor=WHITE_ONLY)
     return render(sc, noise="none", seed=seed)

@@ -59,3 +59,10 @@ def test_joint_types_follow_how_the_faces_stand() -> None:
     bev_l = np.array([np.cos(np.pi / 2 - b), 0.0, np.sin(np.pi / 2 - b)])
     bev_r = np.array([-bev_l[0], 0.0, bev_l[2]])
     assert joint_type(bev_l, bev_r, up, 0.01, 0.014) == "v_groove"
+    # bevels 25 degrees from the vertical (a 50-degree included angle): their normals rise 25 degrees
+    steep = np.radians(25.0)
+    st_l, st_r = np.array([np.cos(steep), 0.0, np.sin(steep)]), np.array([-np.cos(steep), 0.0, np.sin(steep)])
+    assert joint_type(st_l, st_r, up, 0.01, 0.014) == "v_groove"
+    # walls leaning 10 degrees are still an inside corner
+    lean = np.radians(10.0)
+    assert joint_type(np.array([np.cos(lean), 0.0, np.sin(lean)]), y, up, 0.1, 0.014) == "inside_corner"

@@ -40,3 +40,22 @@ def test_a_flat_plate_split_in_two_is_no_groove() -> None:
     seams, _ = groove_seams(p, surf, nm, res.capture.points_camera(), res.capture.intrinsics, nm,
                             support=find_support(p, surf, nm))  # fmt: skip
     assert seams == []
+
+
+def test_an_open_root_is_placed_at_the_middle_of_the_bevels_lower_edges() -> None:
+    """A 1.6 mm root gap above 1 mm root faces, seen through: the bevels' intersection lies (g/2) cot(30
+    degrees) = 1.39 mm below the root, where the seam is; the refinement finds the edges from the rays that
+    pass the bevels' planes below them."""
+    name = "v_groove_open"
+    res = rendered(name, "none")
+    p, _, nm, surf = work(name, "none")
+    full = res.capture.points_camera()
+    seams, surf2 = groove_seams(p, surf, nm, full, res.capture.intrinsics, nm, support=find_support(p, surf, nm))
+    (gt,) = res.ground_truth
+    grooves = [s for s in seams if s.joint == "v_groove"]
+    assert len(grooves) == 1
+    (s,), _ = refine_seams(grooves, full, res.capture.intrinsics, surf2, nm)
+    samples = s.points[0] + np.linspace(0, 1, 60)[:, None] * (s.points[1] - s.points[0])
+    err = point_to_polyline_distance(samples, gt.points_camera)
+    assert np.median(err) < 3e-4  # the intersection alone would be 1.39 mm off
+    assert s.gap_m == pytest.approx(0.0016, abs=4e-4)
