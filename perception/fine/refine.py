@@ -174,8 +174,8 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     # between them; the seam is the middle of their lower edges (the other folds' seam is the intersection)
     ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
     da, db = (q - line0) @ va, (q - line0) @ vb
-    all_a = (ra <= rb) & (da > -0.0005) & (da <= rp.band_m) & (ra <= rp.inlier_sigma * sig)
-    all_b = (rb < ra) & (db > -0.0005) & (db <= rp.band_m) & (rb <= rp.inlier_sigma * sig)
+    all_a = (ra <= rb) & (ra <= others) & (da > -0.0005) & (da <= rp.band_m) & (ra <= rp.inlier_sigma * sig)
+    all_b = (rb < ra) & (rb <= others) & (db > -0.0005) & (db <= rp.band_m) & (rb <= rp.inlier_sigma * sig)
     if all_a.sum() < 10 or all_b.sum() < 10:
         return s
     gap = 0.0
