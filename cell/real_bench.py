@@ -150,7 +150,8 @@ def _score(item: RealItem, seams_pts: list[np.ndarray], ref: dict[str, Any]) -> 
             item.false_seams += 1
 
 
-def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]]) -> tuple[RealItem, Any, Any]:
+def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]],
+             method: str = "refined") -> tuple[RealItem, Any, Any]:  # fmt: skip
     """Detect one item. Returns the item, its cloud (N, 3) or None, and the seams' paths."""
     from perception.capture import read_point_cloud
     from perception.detect import DetectParams, detect, detect_cloud
@@ -178,12 +179,12 @@ def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]
             cloud = cap.points_camera().reshape(-1, 3)
             cloud = cloud[np.isfinite(cloud[:, 2])][::16].astype(np.float64)
             item.points = int(np.isfinite(cap.depth_m).sum())
-            res = detect(cap, DetectParams())
+            res = detect(cap, DetectParams(method=method))
         else:
             pc = read_point_cloud(realdata / rel)
             cloud = pc.points
             item.points = len(pc.points)
-            res = detect_cloud(pc)
+            res = detect_cloud(pc, DetectParams(method=method))
         item.time_s = time.perf_counter() - t0
         item.outcome = "seams"
         for s in res.seams:
@@ -258,11 +259,11 @@ def draw(item: RealItem, cloud: np.ndarray | None, paths: list[np.ndarray], ref:
     plt.close(fig)
 
 
-def run_real(realdata: Path, out: Path | None = None) -> list[RealItem]:
+def run_real(realdata: Path, out: Path | None = None, method: str = "refined") -> list[RealItem]:
     refs = _references(realdata)
     items = []
     for rel, kind in discover(realdata):
-        item, cloud, paths = run_item(realdata, rel, kind, refs)
+        item, cloud, paths = run_item(realdata, rel, kind, refs, method)
         if out is not None and cloud is not None:
             out.mkdir(parents=True, exist_ok=True)
             img = out / (rel.replace("/", "__") + ".png")

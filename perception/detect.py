@@ -830,6 +830,8 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
     # the viewpoint: clouds in a robot or world frame are not seen from their origin; use a point
     # above the cloud's centroid along the axis of least spread, on the side of most normals
     viewpoint = _guess_viewpoint(cloud.points, cloud.normals)
+    if p.method == "surfaces":
+        return _detect_cloud_surfaces(cloud, p, spacing)
     if p.z_range_m == DetectParams().z_range_m:
         # the default working range is for camera-frame depth; a cloud may be in a robot frame
         p = replace(p, z_range_m=(-np.inf, np.inf))
@@ -856,6 +858,24 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
             "counts": dict(log.counts),
         },
     )
+
+
+def _detect_cloud_surfaces(cloud: PointCloud, p: DetectParams, spacing: float) -> DetectionResult:
+    """The surfaces-first stage on the cloud's range image seen from its sensor's side
+    (:func:`perception.cloud_view.sensor_side`); seams in the cloud's frame."""
+    from perception.cloud_view import sensor_side, view_cloud
+    from perception.detect_surfaces import detect_surfaces
+
+    viewpoint = sensor_side(cloud.points, cloud.normals)
+    view = view_cloud(cloud.points, viewpoint)
+    h, w = view.organized.shape[:2]
+    cap = Capture(np.zeros((h, w, 3), np.uint8), view.organized[..., 2].copy(), view.intrinsics,
+                  X_base_tool=view.X_cloud_camera, X_tool_camera=np.eye(4), source=cloud.source)  # fmt: skip
+    p = replace(p, z_range_m=(0.0, np.inf), workspace_min_m=None, workspace_max_m=None)
+    res = detect_surfaces(cap, p, organized=view.organized)
+    info = res.info | {"spacing_m": round(spacing, 5), "viewpoint": viewpoint.round(4).tolist(),
+                       "view_px": [w, h]}  # fmt: skip
+    return replace(res, frame="camera", info=info)
 
 
 def _guess_viewpoint(points: FloatArray, normals: FloatArray | None = None) -> FloatArray:

@@ -29,16 +29,23 @@ from perception.segmentation import Segmenter
 
 
 def detect_surfaces(
-    capture: Capture, params: DetectParams | None = None, *, segmenter: Segmenter | None = None
+    capture: Capture,
+    params: DetectParams | None = None,
+    *,
+    segmenter: Segmenter | None = None,
+    organized: NDArray[np.float32] | None = None,
 ) -> DetectionResult:
     """Every seam of ``capture`` from fitted surfaces and the joints between them; NoSeamFound (with the
-    fitted surfaces as artifacts, for the overlay) when there is none."""
+    fitted surfaces as artifacts, for the overlay) when there is none. ``organized``: the (H, W, 3) points
+    to use instead of the depth back-projected through the pixel centres (a cloud's range image,
+    :mod:`perception.cloud_view`, keeps its points where they were measured)."""
     del segmenter  # same signature as detect(); the surfaces stage does not use the image segmenter yet
     p = params or DetectParams()
     log = StepLog()
     t0 = time.perf_counter()
     with log.step("backproject"):
-        organized = capture.points_camera()
+        if organized is None:
+            organized = capture.points_camera()
     log.counts["raw"] = int(np.isfinite(organized[..., 2]).sum())
     factor = max(1, round(organized.shape[1] / 640))
     with log.step("work_image"):

@@ -22,6 +22,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--realdata", help="the real-data folder (default: ../shared/realdata beside the checkout)")
     p.add_argument("--out", help="write one picture per item (cloud, reference, detected seams) and bench.json here")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.add_argument(
+        "--method",
+        choices=("refined", "surfaces", "paper"),
+        default="refined",
+        help="the fine stage (clouds go through a range image from their viewpoint for surfaces)",
+    )
     p.set_defaults(func=run)
 
 
@@ -38,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     console = Console(stderr=True)
     with console.status("detecting on the real items"):
-        items = run_real(realdata, out)
+        items = run_real(realdata, out, args.method)
     doc = {"realdata": str(realdata), "items": [i.to_json() for i in items],
            "scored": sum(i.scored for i in items), "passed": sum(bool(i.passed) for i in items)}  # fmt: skip
     if out is not None:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from perception.errors import NoSeamFound
 from perception.fine.types import NoiseModel
 
 FloatArray = NDArray[np.float64]
@@ -89,7 +90,7 @@ def estimate_noise(points: NDArray[np.floating], planes: LocalPlanes) -> NoiseMo
     if full.sum() < 100:
         full = np.isfinite(planes.variance) & np.isfinite(z)
     if not full.any():
-        raise ValueError("no pixel has a full window of valid depth: cannot measure the noise")
+        raise NoSeamFound("no pixel has a full window of valid depth: too few neighbouring points to measure the noise")
     k = planes.window_px**2
     # the variance of k points about their own best plane underestimates sigma^2 by (k - 3) / k
     sig = np.sqrt(planes.variance[full] * k / max(k - 3, 1))

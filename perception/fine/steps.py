@@ -122,6 +122,8 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     edge_up = float(np.percentile(a_off[on_up], 98))
     near_up = on_up & (a_off > edge_up - 0.004)
     near_low = on_low & (a_off > edge_up) & (a_off < edge_up + 0.008)
+    if not near_up.any() or not near_low.any():
+        return None  # the lower plate is not seen beside the edge: no step to place
     lo, hi = float(min(t[near_up].min(), t[near_low].min())), float(max(t[near_up].max(), t[near_low].max()))
     nb = max(1, int(np.ceil((hi - lo) / sp.bin_m)))
 

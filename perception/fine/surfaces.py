@@ -179,11 +179,24 @@ def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatA
         radial = d - np.outer(d @ a, a)
         return np.asarray(np.linalg.norm(radial, axis=1) - x[4])
 
+    def jac(x: FloatArray) -> FloatArray:
+        # r = |d - (d.a) a| - R with d = q - c: along the unit radial n, dr/dc = -n and dr/da = -(d.a) n
+        # (n is perpendicular to a), and a moves by (I - a a^T) e / |b| per unit of its two parameters
+        b = axis + x[0] * e1 + x[1] * e2
+        nb = float(np.linalg.norm(b))
+        a = b / nb
+        d = q - (centre + x[2] * e1 + x[3] * e2)
+        da = d @ a
+        radial = d - np.outer(da, a)
+        n = radial / np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-12)
+        n1, n2 = n @ e1, n @ e2
+        return np.column_stack([-da * n1 / nb, -da * n2 / nb, -n1, -n2, -np.ones(len(q))])
+
     r0 = resid(np.array([0.0, 0.0, 0.0, 0.0, r]))
     q = q[np.abs(r0) <= np.percentile(np.abs(r0), 70)]  # the start's worst 30% (other faces) sit out
     sig0 = float(np.median(np.abs(resid(np.array([0.0, 0.0, 0.0, 0.0, r]))))) + 1e-6
-    sol = least_squares(resid, np.array([0.0, 0.0, 0.0, 0.0, r]), loss="soft_l1", f_scale=max(sig0, 1e-4),
-                        x_scale=np.array([0.05, 0.05, scale, scale, scale]))  # fmt: skip
+    sol = least_squares(resid, np.array([0.0, 0.0, 0.0, 0.0, r]), jac=jac, loss="soft_l1", f_scale=max(sig0, 1e-4),
+                        x_scale=np.array([0.05, 0.05, scale, scale, scale]), ftol=1e-6, xtol=1e-6)  # fmt: skip
     x = sol.x
     a = axis + x[0] * e1 + x[1] * e2
     a /= np.linalg.norm(a)

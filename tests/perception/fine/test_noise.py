@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from perception.errors import NoSeamFound
 from perception.fine.noise import estimate_noise, local_planes
 
 from .scenes import rendered, work
@@ -41,5 +42,5 @@ def test_stereo_noise_is_measured_as_the_residual_about_the_surfaces() -> None:
 
 def test_no_full_window_is_a_clear_error() -> None:
     p = np.full((20, 20, 3), np.nan)
-    with pytest.raises(ValueError, match="full window"):
+    with pytest.raises(NoSeamFound, match="full window"):
         estimate_noise(p, local_planes(p, window_px=7))

@@ -1,0 +1,159 @@
+"""An unorganized cloud seen as a range image, so that the surfaces-first stage can run on it.
+
+A PLY or PCD scan has no pixel grid; the fine stage (:mod:`perception.fine`) reads neighbourhoods, contact
+bands and rays off one. Here the cloud is looked at from its sensor's side (:func:`sensor_side`, the stated
+rule for which side is outside) by a virtual pinhole camera whose pixel is about the cloud's sample
+spacing. Each pixel keeps the nearest point along its ray (a z-buffer) at its exact position: the points
+are not moved onto the pixel centres, so nothing is lost to the grid but the points behind others; single
+empty pixels between points take their nearest neighbour's point. Seams found in that view are mapped back
+with ``X_cloud_camera``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from perception.capture import CameraIntrinsics
+from perception.errors import PerceptionError
+
+FloatArray = NDArray[np.float64]
+
+PIXEL_PER_SPACING = 1.25  # the virtual pixel, in the cloud's (angular) sample spacings: coarser, so that a
+# surface's samples leave no pixel empty for what lies behind it to show through
+MAX_SIDE_PX = 1600
+
+
+@dataclass(frozen=True)
+class CloudView:
+    """``organized``: (H, W, 3) float32 points in the virtual camera frame, NaN where no point; the
+    camera's ``intrinsics``; ``X_cloud_camera``: (4, 4) the camera's pose in the cloud's frame."""
+
+    organized: NDArray[np.float32]
+    intrinsics: CameraIntrinsics
+    X_cloud_camera: FloatArray
+
+
+def _angular_spacing(points: FloatArray, eye: FloatArray, *, neighbour: int, sample: int = 20000) -> float:
+    """The cloud's sample spacing as seen from ``eye``: the median, over points, of the distance to the
+    ``neighbour``-th nearest neighbour divided by the range."""
+    from scipy.spatial import cKDTree
+
+    q = points[np.random.default_rng(0).choice(len(points), min(sample, len(points)), replace=False)]
+    d, _ = cKDTree(points).query(q, k=neighbour + 1)
+    return float(np.median(d[:, neighbour] / np.maximum(np.linalg.norm(q - eye, axis=1), 1e-9)))
+
+
+def _fill_holes(organized: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Empty pixels with at least three of their eight neighbours holding a point take the nearest of those
+    points (one pass). A scan seen from another side than it was taken from is sampled coarser across some
+    directions than the pixel: without this its faces would come in stripes, and the gaps between stripes
+    would read as butt gaps. The point is the neighbour's own, not an interpolation."""
+    H, W = organized.shape[:2]
+    z = organized[..., 2]
+    valid = np.isfinite(z)
+    pad = np.pad(organized, ((1, 1), (1, 1), (0, 0)), constant_values=np.nan)
+    best = np.full((H, W), np.inf)
+    pick = np.full((H, W, 3), np.nan, dtype=np.float32)
+    count = np.zeros((H, W), dtype=np.int32)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy == dx == 0:
+                continue
+            nb = pad[1 + dy : 1 + dy + H, 1 + dx : 1 + dx + W]
+            nz = nb[..., 2]
+            ok = np.isfinite(nz)
+            count += ok
+            closer = ok & (nz < best)
+            best[closer] = nz[closer]
+            pick[closer] = nb[closer]
+    fill = ~valid & (count >= 3)
+    out = organized.copy()
+    out[fill] = pick[fill]
+    return out
+
+
+def sensor_side(points: FloatArray, normals: FloatArray | None = None) -> FloatArray:
+    """Where a cloud's sensor stood, by the stated rule for clouds that do not say (this decides which side
+    of a surface is outside, so concave and convex):
+
+    1. the file's normals, when they agree on a side (a scanner's normals face the sensor that saw them);
+    2. a cloud in front of its origin (every point at positive z, within a 110-degree cone) is in a camera
+       frame: the sensor is the origin;
+    3. otherwise the cloud is in a robot or world frame with z up, and the sensor looked down on it: above
+       the cloud's centre, at twice its size.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    centre = np.median(p, axis=0)
+    size = max(float(np.linalg.norm(np.ptp(p, axis=0))), 0.1)
+    if normals is not None and len(normals) == len(p):
+        mean = np.nanmean(np.asarray(normals, dtype=np.float64), axis=0)
+        if np.all(np.isfinite(mean)) and np.linalg.norm(mean) > 0.2:
+            return np.asarray(centre + mean / np.linalg.norm(mean) * 2.0 * size)
+    z = p[:, 2]
+    if np.all(z > 0) and np.percentile(np.maximum(np.abs(p[:, 0]), np.abs(p[:, 1])) / z, 98) < 1.43:
+        return np.zeros(3)
+    return np.asarray(centre + np.array([0.0, 0.0, 2.0 * size]))
+
+
+def view_cloud(points: FloatArray, viewpoint: FloatArray) -> CloudView:
+    """The range image of (N, 3) ``points`` seen from ``viewpoint`` (in the cloud's frame), its pixel
+    :data:`PIXEL_PER_SPACING` sample spacings wide (coarser if the image would be wider than
+    :data:`MAX_SIDE_PX`). A viewpoint too close for the cloud to fit a 110-degree field of view is moved
+    back along its line of sight."""
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 5:
+        raise PerceptionError(f"a cloud must be (N, 3) with N >= 5, got {p.shape}")
+    eye = np.asarray(viewpoint, dtype=np.float64)
+    centre = np.median(p, axis=0)
+    z = centre - eye
+    dist = float(np.linalg.norm(z))
+    if dist < 1e-6:
+        raise PerceptionError("the viewpoint lies at the cloud's centre")
+    z /= dist
+    x = np.cross(z, [0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.column_stack([x, y, z])  # camera axes in the cloud's frame
+    cam = (p - eye) @ R
+    # 98% of the points within 55 degrees of the axis (tan 55 = 1.43): move back as far as that needs
+    lateral = np.maximum(np.abs(cam[:, 0]), np.abs(cam[:, 1]))
+    back = float(np.percentile(lateral / 1.43 - cam[:, 2], 98))
+    if back > 0:
+        eye = eye - z * back
+        cam[:, 2] += back
+    front = cam[:, 2] > 1e-3
+    cam = cam[front]
+    if len(cam) < 5:
+        raise PerceptionError("no point of the cloud lies in front of its viewpoint")
+    # seen from its own sensor, a cloud is that sensor's grid: its nearest neighbour is a pixel away. Seen
+    # from elsewhere (a robot-frame scan, LiDAR lines), it is sampled coarser across some directions, which
+    # the fourth neighbour gives: with the finer spacing the faces would come in stripes, and the gaps
+    # between stripes read as butt gaps
+    own = not np.any(eye)
+    f = 1.0 / (PIXEL_PER_SPACING * max(_angular_spacing(cam, np.zeros(3), neighbour=1 if own else 2), 1e-9))
+    xn, yn = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
+    span = max(float(np.ptp(xn)), float(np.ptp(yn)), 1e-9)
+    f = min(f, (MAX_SIDE_PX - 5) / span)
+    cx, cy = -f * float(xn.min()) + 2.0, -f * float(yn.min()) + 2.0
+    W = int(np.ceil(f * float(np.ptp(xn)))) + 5
+    H = int(np.ceil(f * float(np.ptp(yn)))) + 5
+    f = float(np.clip(f, 0.25 * max(W, H), 19.0 * max(W, H)))  # within what a pinhole camera can be
+    intr = CameraIntrinsics(fx=f, fy=f, cx=cx, cy=cy, width=W, height=H)
+    u = np.floor(f * xn + cx + 0.5).astype(np.int64)  # pixel centres at integers
+    v = np.floor(f * yn + cy + 0.5).astype(np.int64)
+    inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    cam, u, v = cam[inside], u[inside], v[inside]
+    idx = v * W + u
+    order = np.lexsort((cam[:, 2], idx))  # by pixel, nearest first
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = idx[order][1:] != idx[order][:-1]
+    keep = order[first]
+    organized = np.full((H, W, 3), np.nan, dtype=np.float32)
+    organized[v[keep], u[keep]] = cam[keep]
+    organized = _fill_holes(organized)
+    X = np.eye(4)
+    X[:3, :3], X[:3, 3] = R, eye
+    return CloudView(organized, intr, X)
