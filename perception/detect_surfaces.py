@@ -6,7 +6,7 @@ left out is ``info["removed_share"]``). Prompts and the image segmenter are not 
 accepted for the same signature as :func:`perception.detect.detect`); the table is told apart by geometry.
 
     noise -> surfaces -> support -> adjacency -> folds, gaps, grooves     (work resolution)
-          -> refine -> inner gaps, steps -> view clip                      (full resolution near the seams)
+          -> refine -> inner gaps, steps -> merge -> view clip             (full resolution near the seams)
 
 Each step is timed and counted in the result's ``timing_s`` (``step_<name>``) and ``info["counts"]``.
 """
@@ -149,6 +149,7 @@ def _full_resolution_steps(
     """Refinement on the full-resolution points near each seam, the narrow gaps and steps only full
     resolution shows, and the view clip; with how many full-resolution points were read."""
     from perception.fine.gaps import inner_gap_seams
+    from perception.fine.merge import merge_collinear
     from perception.fine.refine import refine_seams
     from perception.fine.steps import step_seams
     from perception.fine.visibility import clip_to_view
@@ -164,6 +165,8 @@ def _full_resolution_steps(
         # a step places the lap's edge from both plates and the edge face's own points; a fold on the narrow
         # edge face, fitted on a few pixels, is the weaker estimate of the same seam
         curves = [c for c in curves if not _duplicates(c, steps)] + steps
+    with log.step("merge"):
+        curves = merge_collinear(curves, organized, capture.intrinsics, noise_full)
     with log.step("view"):
         curves = clip_to_view(curves)
     return curves, used

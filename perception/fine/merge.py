@@ -1,0 +1,147 @@
+"""Pieces of one straight seam made one seam again.
+
+A face the segmentation left in two fragments gives two folds with the same neighbour, one after the other
+on the same line: two pieces of one seam, with a short stretch between them where the fragments meet. They
+are one seam when they lie on one line within the noise, their faces stand the same way, and both faces
+are there, right up to the line, all along the stretch between them (a crossing plate or a hidden stretch
+interrupts a seam: there the faces' points near the line are missing, and the pieces stay apart).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from perception.capture import CameraIntrinsics
+from perception.fine.refine import near_points
+from perception.fine.types import FloatArray, NoiseModel, SeamCurve
+
+
+@dataclass(frozen=True)
+class MergeParams:
+    max_angle_rad: float = np.radians(2.0)  # the pieces' directions agree this well
+    max_normal_angle_rad: float = np.radians(6.0)  # ... and so do their faces' normals
+    min_offset_m: float = 0.0005  # the pieces' lines lie within this (or three sigma) of each other
+    max_gap_m: float = 0.040  # the stretch between them is at most this long
+    near_m: float = 0.003  # the faces' points within this (plus noise) of the line count as reaching it
+    bin_m: float = 0.002
+    min_cover: float = 0.6  # share of the stretch's bins where both faces reach the line
+
+
+def merge_collinear(
+    curves: list[SeamCurve],
+    full: NDArray[np.float32],
+    intr: CameraIntrinsics,
+    noise: NoiseModel,
+    *,
+    params: MergeParams | None = None,
+) -> list[SeamCurve]:
+    """``curves`` with the pieces of each straight seam joined into one (the longest piece's line and faces,
+    over the pieces' whole extent); other curves unchanged, in their order."""
+    mp = params or MergeParams()
+    lines = [i for i, c in enumerate(curves) if c.kind == "linear" and len(c.points) >= 2]
+    parent = list(range(len(curves)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for k, i in enumerate(lines):
+        for j in lines[k + 1 :]:
+            if root(i) != root(j) and _one_seam(curves[i], curves[j], full, intr, noise, mp):
+                parent[root(j)] = root(i)
+    groups: dict[int, list[int]] = {}
+    for i in range(len(curves)):
+        groups.setdefault(root(i), []).append(i)
+    out = []
+    for i, c in enumerate(curves):
+        members = groups[root(i)]
+        if i != members[0]:
+            continue
+        out.append(c if len(members) == 1 else _joined([curves[m] for m in members]))
+    return out
+
+
+def _direction(c: SeamCurve) -> tuple[FloatArray, FloatArray, float]:
+    p0, p1 = c.points[0], c.points[-1]
+    length = float(np.linalg.norm(p1 - p0))
+    return p0, (p1 - p0) / max(length, 1e-12), length
+
+
+def _one_seam(a: SeamCurve, b: SeamCurve, full: NDArray[np.float32], intr: CameraIntrinsics, noise: NoiseModel,
+              mp: MergeParams) -> bool:  # fmt: skip
+    if a.joint != b.joint:
+        return False
+    pa, ua, la = _direction(a)
+    pb, ub, lb = _direction(b)
+    if abs(float(ua @ ub)) < np.cos(mp.max_angle_rad):
+        return False
+    # their faces stand the same way; a face both pieces share (the plate a fragmented face stands on) leaves
+    # the other faces, fitted on fewer points, a wider tolerance
+    shared = bool(set(a.surfaces) & set(b.surfaces))
+    cos_n = np.cos(mp.max_normal_angle_rad * (2.5 if shared else 1.0))
+    na, nb = (a.normals_a.mean(axis=0), a.normals_b.mean(axis=0)), (b.normals_a.mean(axis=0), b.normals_b.mean(axis=0))
+    same = min(float(na[0] @ nb[0]), float(na[1] @ nb[1])) > cos_n
+    swapped = min(float(na[0] @ nb[1]), float(na[1] @ nb[0])) > cos_n
+    if not (same or swapped):
+        return False
+    z = float(np.median(np.concatenate([a.points[:, 2], b.points[:, 2]])))
+    sig = float(noise.sigma_m(z))
+    tol = max(mp.min_offset_m, 3.0 * sig)
+    # the shorter piece on the longer one's line (its own direction is the less certain)
+    p0, u, q = (pa, ua, b.points) if la >= lb else (pb, ub, a.points)
+    d = q - p0
+    if float(np.max(np.linalg.norm(d - np.outer(d @ u, u), axis=1))) > tol:
+        return False
+    # the stretch between them along a's line
+    ta = (0.0, la)
+    tb = sorted(float((e - pa) @ ua) for e in (b.points[0], b.points[-1]))
+    lo, hi = (ta[1], tb[0]) if tb[0] >= ta[1] else (tb[1], ta[0]) if tb[1] <= ta[0] else (0.0, 0.0)
+    gap = hi - lo
+    if gap > mp.max_gap_m:
+        return False
+    if gap <= mp.bin_m:
+        return True  # touching or overlapping pieces: nothing between them to check
+    longer = a if la >= lb else b
+    return _faces_reach(pa + lo * ua, pa + hi * ua, ua, longer, full, intr, noise, mp)
+
+
+def _faces_reach(g0: FloatArray, g1: FloatArray, u: FloatArray, c: SeamCurve, full: NDArray[np.float32],
+                 intr: CameraIntrinsics, noise: NoiseModel, mp: MergeParams) -> bool:  # fmt: skip
+    """Whether both of ``c``'s faces have points close to the line along most of the stretch g0-g1."""
+    q = near_points(full, intr, np.array([g0, g1]), mp.near_m + 0.004)
+    if len(q) == 0:
+        return False
+    d = q - g0
+    t = d @ u
+    length = float(np.linalg.norm(g1 - g0))
+    inside = (t >= 0.0) & (t <= length)
+    q, d, t = q[inside], d[inside], t[inside]
+    dist = np.linalg.norm(d - np.outer(t, u), axis=1)
+    sig = noise.sigma_m(q[:, 2])
+    close = dist <= mp.near_m + 3.0 * sig
+    bins = max(1, int(np.ceil(length / mp.bin_m)))
+    k = np.clip((t / mp.bin_m).astype(int), 0, bins - 1)
+    covered = np.ones(bins, dtype=bool)
+    for n, other in ((c.normals_a[0], c.normals_b[0]), (c.normals_b[0], c.normals_a[0])):
+        on = np.abs(d @ n) <= 3.0 * sig  # on this face's plane through the line ...
+        off = np.abs(d @ other) > 3.0 * sig  # ... and clearly off the other's
+        hit = np.zeros(bins, dtype=bool)
+        hit[k[on & off & close]] = True
+        covered &= hit
+    return bool(covered.mean() >= mp.min_cover)
+
+
+def _joined(pieces: list[SeamCurve]) -> SeamCurve:
+    """One seam on the longest piece's line over all the pieces' extent."""
+    best = max(pieces, key=lambda c: float(np.linalg.norm(c.points[-1] - c.points[0])))
+    p0, u, _ = _direction(best)
+    t = np.concatenate([(c.points - p0) @ u for c in pieces])
+    ends = np.array([p0 + float(t.min()) * u, p0 + float(t.max()) * u])
+    return replace(best, points=ends, normals_a=np.tile(best.normals_a[0], (2, 1)),
+                   normals_b=np.tile(best.normals_b[0], (2, 1)), support=sum(c.support for c in pieces),
+                   rms_m=max(c.rms_m for c in pieces))  # fmt: skip
