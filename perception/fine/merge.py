@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
+from perception.fine.groups import Groups
 from perception.fine.refine import near_points
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve
 
@@ -42,18 +43,12 @@ def merge_collinear(
     over the pieces' whole extent); other curves unchanged, in their order."""
     mp = params or MergeParams()
     lines = [i for i, c in enumerate(curves) if c.kind == "linear" and len(c.points) >= 2]
-    parent = list(range(len(curves)))
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
+    sets = Groups(range(len(curves)))
+    root = sets.find
     for k, i in enumerate(lines):
         for j in lines[k + 1 :]:
             if root(i) != root(j) and _one_seam(curves[i], curves[j], full, intr, noise, mp):
-                parent[root(j)] = root(i)
+                sets.join(i, j)
     groups: dict[int, list[int]] = {}
     for i in range(len(curves)):
         groups.setdefault(root(i), []).append(i)

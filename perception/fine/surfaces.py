@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from perception.fine.groups import Groups
 from perception.fine.noise import LocalPlanes
 from perception.fine.types import NoiseModel, Surface, SurfaceSet
 
@@ -506,13 +507,8 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
         return labels, surfaces
     z_typ = float(np.median([s.z_m for s in surfaces]))
     pairs = adjacent_pairs(SurfaceSet(labels, 1, tuple(surfaces)), noise, reach_m=4.0 * float(noise.spacing_m(z_typ)))
-    parent = {k: k for k in plane_ids}
-
-    def find(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
+    groups_of = Groups(plane_ids)
+    find = groups_of.find
 
     lo_cos, hi_cos = np.cos(np.radians(60.0)), np.cos(sp.merge_angle_rad)
     for pr in pairs:
@@ -523,7 +519,7 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
         sa, sb = float(A.residual(B.centroid[None])[0]), float(B.residual(A.centroid[None])[0])
         if sa * sb <= 0:
             continue
-        parent[find(pr.b)] = find(pr.a)
+        groups_of.join(pr.a, pr.b)
     groups: dict[int, list[int]] = {}
     for k in plane_ids:
         groups.setdefault(find(k), []).append(k)
@@ -595,13 +591,8 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
     """Planes whose pixels touch and that are one plane within the noise become one surface."""
     if len(surfaces) < 2:
         return labels, surfaces
-    parent = list(range(len(surfaces)))
-
-    def find(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
+    sets = Groups(range(len(surfaces)))
+    find = sets.find
 
     touching: set[tuple[int, int]] = set()
     n_lab = len(surfaces)
@@ -632,7 +623,7 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
         pv = sample(v)
         if np.median(np.abs(sv.residual(pu))) > tol or np.median(np.abs(su.residual(pv))) > tol:
             continue
-        parent[find(v)] = find(u)
+        sets.join(u, v)
     roots = sorted({find(i) for i in range(len(surfaces))})
     if len(roots) == len(surfaces):
         return labels, surfaces
