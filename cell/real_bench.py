@@ -18,7 +18,7 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -150,8 +150,11 @@ def _score(item: RealItem, seams_pts: list[np.ndarray], ref: dict[str, Any]) -> 
             item.false_seams += 1
 
 
+Method = Literal["refined", "surfaces", "paper"]
+
+
 def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]],
-             method: str = "refined") -> tuple[RealItem, Any, Any]:  # fmt: skip
+             method: Method = "refined") -> tuple[RealItem, Any, Any]:  # fmt: skip
     """Detect one item. Returns the item, its cloud (N, 3) or None, and the seams' paths."""
     from perception.capture import read_point_cloud
     from perception.detect import DetectParams, detect, detect_cloud
@@ -259,7 +262,7 @@ def draw(item: RealItem, cloud: np.ndarray | None, paths: list[np.ndarray], ref:
     plt.close(fig)
 
 
-def run_real(realdata: Path, out: Path | None = None, method: str = "refined") -> list[RealItem]:
+def run_real(realdata: Path, out: Path | None = None, method: Method = "refined") -> list[RealItem]:
     refs = _references(realdata)
     items = []
     for rel, kind in discover(realdata):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import cast
 
 
 def _default_realdata() -> Path:
@@ -35,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from cell.real_bench import COVER_SHARE, run_real
+    from cell.real_bench import COVER_SHARE, Method, run_real
 
     realdata = Path(args.realdata) if args.realdata else _default_realdata()
     if not realdata.is_dir():
@@ -44,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     console = Console(stderr=True)
     with console.status("detecting on the real items"):
-        items = run_real(realdata, out, args.method)
+        items = run_real(realdata, out, cast(Method, args.method))
     doc = {"realdata": str(realdata), "items": [i.to_json() for i in items],
            "scored": sum(i.scored for i in items), "passed": sum(bool(i.passed) for i in items)}  # fmt: skip
     if out is not None:
