@@ -2,8 +2,8 @@
 
 A trial: draw a true camera mount and board pose (a few mm and degrees away from the nominal CAD
 values the planner is given), plan N eye-in-hand poses, simulate the views with realistic noise
-(corner noise, robot repeatability), measure each board pose by PnP from the noisy corners (or, with
-``render_images``, render the images and run the real detector), solve, and compare every
+(corner noise, robot repeatability), measure each board pose by PnP from the noisy corners (or, handed a
+renderer, render the images and run the real detector), solve, and compare every
 closed-form method and the refined result with the truth. The report holds medians over trials.
 """
 
@@ -22,7 +22,7 @@ from calibration.board import CharucoBoardSpec, detect_board, solve_board_pose
 from calibration.errors import CalibrationError
 from calibration.handeye import REFINED, HandEyeResult, solve_hand_eye
 from calibration.planner import PlanParams, Workspace, plan_eye_in_hand
-from calibration.simulate import RenderParams, perturb_pose, simulate_views
+from calibration.simulate import ViewRenderer, perturb_pose, simulate_views
 from perception.transforms import make_X, rotation_angle_rad
 
 logger = logging.getLogger(__name__)
@@ -79,7 +79,6 @@ class BenchConfig:
     corner_sigma_px: float = 0.3
     robot_sigma_m: float = 0.05e-3
     robot_sigma_rad: float = 1e-4  # the 0.05 mm seen over a 0.5 m lever
-    render_images: bool = False
 
     def __post_init__(self) -> None:
         if self.trials < 1:
@@ -97,8 +96,17 @@ class TrialErrors:
     errors: dict[str, tuple[float, float]]
 
 
-def run_trial(n_poses: int, trial: int, *, config: BenchConfig, scene: BenchScene | None = None) -> TrialErrors:
-    """One trial with ``n_poses`` planned poses; deterministic for (config.seed, n_poses, trial)."""
+def run_trial(
+    n_poses: int,
+    trial: int,
+    *,
+    config: BenchConfig,
+    scene: BenchScene | None = None,
+    render: ViewRenderer | None = None,
+) -> TrialErrors:
+    """One trial with ``n_poses`` planned poses; deterministic for (config.seed, n_poses, trial). With ``render``
+    (``sim_fakes.board_render.BoardRenderer()``) every view's image is rendered and the board detector measures
+    it (the corners then carry the image's noise, not ``config.corner_sigma_px``)."""
     sc = scene or BenchScene()
     rng = np.random.default_rng([config.seed, n_poses, trial])
     X_tool_camera = perturb_pose(
@@ -124,14 +132,14 @@ def run_trial(n_poses: int, trial: int, *, config: BenchConfig, scene: BenchScen
         image_size=sc.image_size,
         X_tool_camera=X_tool_camera,
         X_base_board=X_base_board,
-        corner_sigma_px=0.0 if config.render_images else config.corner_sigma_px,
+        corner_sigma_px=0.0 if render is not None else config.corner_sigma_px,
         robot_sigma_m=config.robot_sigma_m,
         robot_sigma_rad=config.robot_sigma_rad,
         seed=int(rng.integers(2**31)),
-        render=RenderParams() if config.render_images else None,
+        render=render,
     )
     X_base_tool = [v.X_base_tool for v in views]
-    if config.render_images:
+    if render is not None:
         observations = []
         for v in views:
             assert v.image is not None
@@ -160,15 +168,20 @@ def _errors(result: HandEyeResult, X_tool_camera_true: FloatArray) -> tuple[floa
 
 
 def run_bench(
-    config: BenchConfig, *, scene: BenchScene | None = None, on_trial: Callable[[TrialErrors], None] | None = None
+    config: BenchConfig,
+    *,
+    scene: BenchScene | None = None,
+    on_trial: Callable[[TrialErrors], None] | None = None,
+    render: ViewRenderer | None = None,
 ) -> Report:
     """Medians over ``config.trials`` trials for each pose count and method, in mm and degrees
-    (the report is for people and JSON readers). ``on_trial`` is called after every trial."""
+    (the report is for people and JSON readers). ``on_trial`` is called after every trial; ``render``: as in
+    :func:`run_trial`."""
     report: Report = {}
     for n in config.pose_counts:
         trials = []
         for t in range(config.trials):
-            res = run_trial(n, t, config=config, scene=scene)
+            res = run_trial(n, t, config=config, scene=scene, render=render)
             trials.append(res)
             if on_trial is not None:
                 on_trial(res)

@@ -8,8 +8,9 @@ Given the true hand-eye transform and board pose, a camera and a pose plan, each
 - the true ``X_camera_board`` from the real pose;
 - the ChArUco corners inside the image, projected with the camera model, plus Gaussian pixel noise
   (``corner_sigma_px`` per coordinate);
-- optionally a rendered 8-bit image: the board picture warped into the camera (supersampled, so edges
-  are area-averaged), lens blur, and sensor noise, for exercising :func:`calibration.board.detect_board`.
+- optionally a rendered 8-bit image, drawn by the :class:`ViewRenderer` the caller hands in (the simulator's
+  ``sim_fakes.board_render.BoardRenderer``: the board picture warped into the camera, supersampled, lens blur
+  and sensor noise), for exercising :func:`calibration.board.detect_board`.
 
 Everything random comes from ``seed``.
 """
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -32,19 +34,21 @@ from perception.transforms import check_X, invert_X, make_X
 FloatArray = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class RenderParams:
-    """Synthetic image settings. ``supersample``: render at this factor and area-average down.
-    ``blur_sigma_px``: Gaussian lens blur, pixels. ``noise_sigma``: sensor noise, gray levels.
-    ``background``: gray level around the board. ``board_px_per_m``: resolution of the board picture
-    that is warped (keep it above the projected resolution times ``supersample``)."""
+class ViewRenderer(Protocol):
+    """Draws a simulated view's (H, W) uint8 image of ``board`` lying at ``X_camera_board`` (4, 4, metres), sensor
+    noise drawn from ``rng``. The simulator's ``sim_fakes.board_render.BoardRenderer`` is one; the caller hands it
+    in, so calibration imports nothing of sim_fakes."""
 
-    supersample: int = 3
-    blur_sigma_px: float = 0.6
-    noise_sigma: float = 2.0
-    background: int = 90
-    board_px_per_m: float = 8000.0
-    board_margin_m: float = 0.01
+    def __call__(
+        self,
+        board: CharucoBoardSpec,
+        X_camera_board: FloatArray,
+        *,
+        K: FloatArray,
+        image_size: tuple[int, int],
+        rng: np.random.Generator,
+        dist: FloatArray | None = None,
+    ) -> NDArray[np.uint8]: ...
 
 
 @dataclass(frozen=True)
@@ -89,14 +93,14 @@ def simulate_views(
     robot_sigma_m: float = 0.0,
     robot_sigma_rad: float = 0.0,
     seed: int = 0,
-    render: RenderParams | None = None,
+    render: ViewRenderer | None = None,
     min_corners: int = 6,
 ) -> list[SimulatedView]:
     """Synthesize one :class:`SimulatedView` per planned pose.
 
     Eye-in-hand needs the truths ``X_tool_camera`` and ``X_base_board``; eye-to-hand ``X_base_camera``
     and ``X_tool_board`` (all (4, 4), metres). ``K``: (3, 3); ``image_size``: (width, height) pixels;
-    ``dist``: OpenCV distortion coefficients. ``render``: also draw an image of each view.
+    ``dist``: OpenCV distortion coefficients. ``render``: also draw an image of each view with it.
     Raises CalibrationError when a view sees fewer than ``min_corners`` corners (the plan does not
     fit the camera).
     """
@@ -123,11 +127,6 @@ def simulate_views(
     K_arr = np.asarray(K, dtype=np.float64)
     dist_arr = np.zeros(5) if dist is None else np.asarray(dist, dtype=np.float64).reshape(-1)
     corners_all = board.corners_board
-    board_picture = None
-    if render is not None:
-        board_picture = board.image(
-            px_per_m=render.board_px_per_m, margin_px=round(render.board_margin_m * render.board_px_per_m)
-        )
     views: list[SimulatedView] = []
     for i, X_plan in enumerate(X_base_tool_plan):
         X_reported = check_X(X_plan, name=f"X_base_tool_plan[{i}]")
@@ -138,10 +137,8 @@ def simulate_views(
             raise CalibrationError(f"simulated view {i} sees only {len(ids)} corners; the plan does not fit the camera")
         px_noisy = px + rng.normal(0.0, corner_sigma_px, px.shape)
         image = None
-        if render is not None and board_picture is not None:
-            image = render_view(
-                board_picture, X_cb, K=K_arr, dist=dist_arr, image_size=image_size, params=render, rng=rng
-            )
+        if render is not None:
+            image = render(board, X_cb, K=K_arr, dist=dist_arr, image_size=image_size, rng=rng)
         views.append(
             SimulatedView(
                 X_base_tool=X_reported,
@@ -178,78 +175,3 @@ def _visible_corners(
     )
     ids = np.flatnonzero(inside).astype(np.int32)
     return ids, np.asarray(px[ids], dtype=np.float64)
-
-
-def render_view(
-    board_picture: NDArray[np.uint8],
-    X_camera_board: ArrayLike,
-    *,
-    K: ArrayLike,
-    image_size: tuple[int, int],
-    params: RenderParams,
-    rng: np.random.Generator,
-    dist: ArrayLike | None = None,
-) -> NDArray[np.uint8]:
-    """(H, W) uint8 camera image of a board picture made by ``CharucoBoardSpec.image`` with
-    ``px_per_m = params.board_px_per_m`` and margin ``params.board_margin_m``.
-
-    Board point (x, y) is at picture pixel ``margin - 0.5 + (x, y) * px_per_m`` (pixel-centre
-    convention). Without distortion the picture is warped by the plane homography; with distortion
-    each image pixel's ray is intersected with the board plane and the picture is remapped.
-    """
-    X = check_X(X_camera_board, name="X_camera_board")
-    K_arr = np.asarray(K, dtype=np.float64)
-    dist_arr = np.zeros(5) if dist is None else np.asarray(dist, dtype=np.float64).reshape(-1)
-    width, height = image_size
-    s = int(params.supersample)
-    if s < 1:
-        raise CalibrationError(f"supersample must be >= 1, got {s}")
-    ppm = params.board_px_per_m
-    offset = round(params.board_margin_m * ppm) - 0.5
-    # Board metres -> picture pixels, and supersampled-image pixels -> image pixels (pixel centres).
-    picture_from_board = np.array([[ppm, 0.0, offset], [0.0, ppm, offset], [0.0, 0.0, 1.0]])
-    big_from_image = np.array([[s, 0.0, (s - 1) / 2.0], [0.0, s, (s - 1) / 2.0], [0.0, 0.0, 1.0]])
-    big_size = (width * s, height * s)
-    if not np.any(dist_arr):
-        image_from_board = K_arr @ np.column_stack([X[:3, 0], X[:3, 1], X[:3, 3]])
-        H = big_from_image @ image_from_board @ np.linalg.inv(picture_from_board)
-        big = cv2.warpPerspective(
-            board_picture,
-            H,
-            big_size,
-            flags=cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=params.background,
-        )
-    else:
-        # Cast the ray of every image pixel centre onto the board plane (undistorting it first), then
-        # upsample that smooth map to the supersampled grid: cv2.resize's pixel-centre convention
-        # puts big pixel x at image pixel (x + 0.5) / s - 0.5, exactly where it belongs.
-        u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-        image_uv = np.stack([u, v], axis=-1).reshape(-1, 1, 2)
-        rays = cv2.undistortPoints(image_uv, K_arr, dist_arr).reshape(-1, 2)
-        d_camera = np.column_stack([rays, np.ones(len(rays))])
-        # Ray λ d meets the board plane z_board = 0: R^T (λ d - t) has zero z.
-        R, t = X[:3, :3], X[:3, 3]
-        d_board = d_camera @ R
-        t_board = R.T @ t
-        with np.errstate(divide="ignore"):
-            lam = t_board[2] / d_board[:, 2]
-        p_board = lam[:, None] * d_board - t_board
-        map_x = (p_board[:, 0] * ppm + offset).reshape(height, width).astype(np.float32)
-        map_y = (p_board[:, 1] * ppm + offset).reshape(height, width).astype(np.float32)
-        off_board = ~np.isfinite(lam) | (lam <= 0)
-        map_x[off_board.reshape(height, width)] = -1e6
-        big = cv2.remap(
-            board_picture,
-            cv2.resize(map_x, big_size, interpolation=cv2.INTER_LINEAR),
-            cv2.resize(map_y, big_size, interpolation=cv2.INTER_LINEAR),
-            cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=params.background,
-        )
-    image = cv2.resize(big, (width, height), interpolation=cv2.INTER_AREA).astype(np.float64)
-    if params.blur_sigma_px > 0:
-        image = np.asarray(cv2.GaussianBlur(image, (0, 0), params.blur_sigma_px), dtype=np.float64)
-    image += rng.normal(0.0, params.noise_sigma, image.shape)
-    return np.asarray(np.clip(np.rint(image), 0, 255), dtype=np.uint8)

@@ -19,7 +19,7 @@ accordingly. Alternatively the camera plays back capture folders, cycling throug
 The scene ``"charuco"`` shows a ChArUco calibration board (:class:`BoardTarget`) instead of a weldment: the
 board lies at ``X_base_board`` (robot base frame with the track at 0), so the camera sees
 ``X_camera_board = inverse(X_base0_base @ X_base_tool @ X_tool_camera) @ X_base_board``. The board picture is
-warped into the image by :func:`calibration.simulate.render_view` (supersampled, lens blur, sensor noise; the
+warped into the image by :func:`sim_fakes.board_render.render_view` (supersampled, lens blur, sensor noise; the
 colour image is that gray picture in all three channels) and the depth is the exact distance to the board's
 plane (the table it lies on). The true ``X_camera_board`` travels in ``capture.extra["X_camera_board"]``.
 About 0.03 s per frame at 640x360.
@@ -59,7 +59,7 @@ from sim_fakes.render import NOISE_MODELS, SIM_DEPTH_SCALE, X_BASE_WORLD, X_TOOL
 from sim_fakes.scenes import CameraSetup, Scene, get_scene, with_resolution
 
 if TYPE_CHECKING:
-    from calibration.board import CharucoBoardSpec
+    from sim_fakes.board_render import BoardPicture
 
 logger = logging.getLogger(__name__)
 
@@ -78,14 +78,16 @@ CHARUCO_SCENE = "charuco"
 class BoardTarget:
     """The ChArUco board of the ``"charuco"`` scene and how it is imaged.
 
-    ``board``: the board's definition. ``X_base_board``: (4, 4) its pose in the robot base frame with the track
-    at 0, metres (board z points away from the printed face, into the table). ``blur_sigma_px``: Gaussian lens
-    blur, pixels. ``noise_gray``: sensor noise, gray levels (of 255). ``background``: gray level around the
-    board. ``supersample``: rendering factor (area-averaged down). ``board_px_per_m``: resolution of the board
-    picture that is warped (keep it above the projected resolution times ``supersample``).
+    ``board``: the board's definition (a ``calibration.board.CharucoBoardSpec``, or anything that draws its
+    picture: :class:`sim_fakes.board_render.BoardPicture`). ``X_base_board``: (4, 4) its pose in the robot base
+    frame with the track at 0, metres (board z points away from the printed face, into the table).
+    ``blur_sigma_px``: Gaussian lens blur, pixels. ``noise_gray``: sensor noise, gray levels (of 255).
+    ``background``: gray level around the board. ``supersample``: rendering factor (area-averaged down).
+    ``board_px_per_m``: resolution of the board picture that is warped (keep it above the projected resolution
+    times ``supersample``).
     """
 
-    board: CharucoBoardSpec
+    board: BoardPicture
     X_base_board: FloatArray
     blur_sigma_px: float = 0.6
     noise_gray: float = 2.0
@@ -280,8 +282,8 @@ class FakeCamera:
         return invert_X(self.X_world_camera()) @ X_world_board
 
     def _board_frame(self, index: int) -> _Frame:
-        # Imported here: only the board scene needs OpenCV and the calibration package.
-        from calibration.simulate import RenderParams, render_view
+        # Imported here: only the board scene needs OpenCV.
+        from sim_fakes.board_render import RenderParams, board_picture, render_view
 
         assert self.board is not None
         b = self.board
@@ -293,9 +295,7 @@ class FakeCamera:
             board_px_per_m=b.board_px_per_m,
         )
         if self._board_picture is None:
-            self._board_picture = b.board.image(
-                px_per_m=params.board_px_per_m, margin_px=round(params.board_margin_m * params.board_px_per_m)
-            )
+            self._board_picture = board_picture(b.board, params)
         cam = self.scene.camera
         intrinsics = CameraIntrinsics(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
         X_camera_board = self.X_camera_board()

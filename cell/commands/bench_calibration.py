@@ -53,8 +53,10 @@ def run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from calibration.bench import METHODS, BenchConfig, run_bench, target_failures
+    from sim_fakes.board_render import BoardRenderer
 
-    config = BenchConfig(pose_counts=args.poses, trials=args.trials, seed=args.seed, render_images=args.images)
+    config = BenchConfig(pose_counts=args.poses, trials=args.trials, seed=args.seed)
+    render = BoardRenderer() if args.images else None
     progress = Progress(
         TextColumn("bench calibration"),
         BarColumn(),
@@ -65,12 +67,12 @@ def run(args: argparse.Namespace) -> int:
     )
     with progress:
         task = progress.add_task("trials", total=len(config.pose_counts) * config.trials)
-        report = run_bench(config, on_trial=lambda _: progress.advance(task))
+        report = run_bench(config, on_trial=lambda _: progress.advance(task), render=render)
 
     if args.json:
         print(json.dumps(report))
     else:
-        noise = "rendered images" if config.render_images else f"corners {config.corner_sigma_px:g} px"
+        noise = "rendered images" if render is not None else f"corners {config.corner_sigma_px:g} px"
         table = Table(
             title=f"hand-eye error vs truth, median of {config.trials} trials\n"
             f"({noise}, robot {config.robot_sigma_m * 1000:g} mm, seed {config.seed})"

@@ -17,8 +17,8 @@ from calibration.board import (
     solve_board_pose,
 )
 from calibration.errors import CalibrationError
-from calibration.simulate import RenderParams, render_view
 from perception.transforms import look_at_X, make_X, rotation_angle_rad
+from sim_fakes.board_render import RenderParams, render_view
 
 
 def pose_error(X_a: np.ndarray, X_b: np.ndarray) -> tuple[float, float]:

@@ -87,3 +87,35 @@ def test_a_plan_that_misses_the_camera_is_refused(cell):
     away = [np.eye(4)]  # tool at the base origin: the board is behind the camera
     with pytest.raises(CalibrationError, match="sees only 0 corners"):
         simulate(cell, away)
+
+
+def test_each_view_image_is_drawn_by_the_renderer_handed_in_with_that_view_s_true_pose(cell, plan15):
+    calls = []
+
+    def recording(board, X_camera_board, *, K, image_size, rng, dist=None):
+        calls.append((board, X_camera_board, K, image_size, dist))
+        return np.full((image_size[1], image_size[0]), len(calls), dtype=np.uint8)
+
+    views = simulate(cell, plan15[:3], render=recording)
+    assert len(calls) == 3
+    for i, (v, (board, X_cb, K, size, dist)) in enumerate(zip(views, calls, strict=True)):
+        assert board is cell.board and size == cell.image_size
+        np.testing.assert_array_equal(X_cb, v.X_camera_board_true)
+        np.testing.assert_array_equal(K, cell.K)
+        np.testing.assert_array_equal(dist, np.zeros(5))
+        assert v.image is not None and v.image.shape == (800, 1280) and np.all(v.image == i + 1)
+
+
+def test_a_rendered_view_shows_the_board_where_its_corners_are(cell, plan15):
+    from calibration.board import detect_board
+    from sim_fakes.board_render import BoardRenderer, RenderParams
+
+    (view,) = simulate(cell, plan15[:1], render=BoardRenderer(RenderParams()))
+    assert view.image is not None
+    obs = detect_board(view.image, board=cell.board, K=cell.K)
+    assert obs.n_corners == 40
+    order = np.argsort(view.corner_ids)
+    np.testing.assert_array_equal(obs.corner_ids, view.corner_ids[order])
+    # the detector finds the exact projections (corner noise 0), as on test_board's rendered views
+    error_px = np.linalg.norm(obs.corners_px - view.corners_px[order], axis=1)
+    assert error_px.mean() < 0.06 and error_px.max() < 0.2

@@ -35,7 +35,7 @@ from calibration.errors import CalibrationError
 from calibration.handeye import HandEyeMode, HandEyeResult
 from calibration.planner import PlanParams
 from calibration.result_file import PREVIOUS_SUFFIX, RESULT_FORMAT
-from calibration.simulate import RenderParams, perturb_pose, render_view
+from calibration.simulate import perturb_pose
 from calibration.verdict import Verdict, VerdictThresholds, Verification
 from calibration.views import CalibrationPlan, ViewRecord, WizardParams, make_plan, visible_corner_count
 from calibration.wizard import DeviceReport, HandEyeWizard, LoggingUI, WizardCancelled
@@ -47,6 +47,7 @@ from drivers.fanuc import FanucRobot
 from drivers.protocols import Robot, RobotState
 from perception.capture import CameraIntrinsics, Capture
 from perception.transforms import X_from_xyzwpr_mm_deg, invert_X, look_at_X, make_X, rotation_angle_rad
+from sim_fakes.board_render import RenderParams, render_view
 from sim_fakes.fake_camera import CHARUCO_SCENE, BoardTarget, FakeCamera
 from sim_fakes.fake_fanuc import DEFAULT_START_XYZWPR_MM_DEG, FakeFanucController
 from sim_fakes.loopback import free_loopback_host
@@ -519,8 +520,8 @@ def test_declining_the_plan_moves_nothing(tmp_path: Path) -> None:
 
 # ---------------------------------------------------------------------------------------------- eye-to-hand
 class FixedCamera:
-    """A camera fixed above the table looking at a board held by the robot: renders the board (calibration.
-    simulate) from the robot's live pose; the depth is the table, 0.95 m away."""
+    """A camera fixed above the table looking at a board held by the robot: renders the board (sim_fakes.
+    board_render) from the robot's live pose; the depth is the table, 0.95 m away."""
 
     def __init__(self, robot: Robot, *, X_base_camera: FloatArray, X_tool_board: FloatArray, board: CharucoBoardSpec):
         self.name = "fixed-camera"
