@@ -25,6 +25,7 @@ robot poses taken as exact.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
@@ -67,12 +68,12 @@ class DegeneracyLimits:
     """When the robot motion cannot determine the hand-eye transform (or barely can).
 
     ``min_views``: hard minimum (3: two independent motions). ``recommended_views``: fewer only warns.
-    ``pure_translation_deg``: below this largest relative rotation the poses are called pure
-    translations. ``min_rotation_deg``: the largest relative rotation between any two views must
-    reach this. ``min_axis_spread_deg``: the rotation axes of the relative motions must deviate from
-    their common direction by at least this. ``max_angle_mismatch_deg``: the rotation angle of each
+    ``pure_translation_rad``: below this largest relative rotation the poses are called pure
+    translations. ``min_rotation_rad``: the largest relative rotation between any two views must
+    reach this. ``min_axis_spread_rad``: the rotation axes of the relative motions must deviate from
+    their common direction by at least this. ``max_angle_mismatch_rad``: the rotation angle of each
     robot motion must match the camera's (an invariant of AX = XB); a larger median mismatch means
-    the views are mis-paired.
+    the views are mis-paired. Angles in radians (the messages say degrees).
 
     After solving, the solution must explain the views: the median corner reprojection error must
     stay below ``max_median_px`` (without corner pixels, the median board-position disagreement below
@@ -82,10 +83,10 @@ class DegeneracyLimits:
 
     min_views: int = 3
     recommended_views: int = 8
-    pure_translation_deg: float = 0.5
-    min_rotation_deg: float = 5.0
-    min_axis_spread_deg: float = 5.0
-    max_angle_mismatch_deg: float = 2.0
+    pure_translation_rad: float = math.radians(0.5)
+    min_rotation_rad: float = math.radians(5.0)
+    min_axis_spread_rad: float = math.radians(5.0)
+    max_angle_mismatch_rad: float = math.radians(2.0)
     max_median_px: float = 2.0
     max_median_mm: float = 5.0
 
@@ -403,9 +404,11 @@ def check_motion(
     angle_A = np.linalg.norm(rotvec_A, axis=1)
     angle_B = Rotation.from_matrix(B[:, :3, :3]).magnitude()
     k_max = int(np.argmax(angle_A))
-    max_deg = float(np.degrees(angle_A[k_max]))
+    max_rad = float(angle_A[k_max])
+    max_deg = math.degrees(max_rad)
+    min_rotation_deg = math.degrees(limits.min_rotation_rad)
     max_move_mm = float(np.max(np.linalg.norm(A[:, :3, 3], axis=1))) * 1000.0
-    if max_deg < limits.pure_translation_deg:
+    if max_rad < limits.pure_translation_rad:
         if max_move_mm < 1.0:
             raise CalibrationError(
                 f"all {n} views were taken at the same robot pose (largest move {max_move_mm:.2f} mm, "
@@ -414,32 +417,32 @@ def check_motion(
         raise CalibrationError(
             f"pure translations: the robot only translated between views (largest relative rotation "
             f"{max_deg:.2f} deg, largest move {max_move_mm:.0f} mm), so the camera rotation is unobservable; "
-            f"rotate the tool by >= {limits.min_rotation_deg:g} deg about at least two different axes"
+            f"rotate the tool by >= {min_rotation_deg:g} deg about at least two different axes"
         )
-    if max_deg < limits.min_rotation_deg:
+    if max_rad < limits.min_rotation_rad:
         raise CalibrationError(
             f"relative rotations too small: the largest, between views {i_idx[k_max]} and {j_idx[k_max]}, "
-            f"is {max_deg:.2f} deg (< {limits.min_rotation_deg:g} deg); rotate the tool more between views"
+            f"is {max_deg:.2f} deg (< {min_rotation_deg:g} deg); rotate the tool more between views"
         )
-    informative = angle_A >= np.radians(limits.min_rotation_deg)
+    informative = angle_A >= limits.min_rotation_rad
     axes = rotvec_A[informative] / angle_A[informative, None]
     # Principal direction of the axes (sign-free), then the largest deviation from it.
     _, eigvec = np.linalg.eigh(axes.T @ axes)
     principal = eigvec[:, -1]
-    spread_deg = float(np.degrees(np.arccos(np.clip(np.min(np.abs(axes @ principal)), 0.0, 1.0))))
-    if spread_deg < limits.min_axis_spread_deg:
+    spread_rad = float(np.arccos(np.clip(np.min(np.abs(axes @ principal)), 0.0, 1.0)))
+    if spread_rad < limits.min_axis_spread_rad:
         raise CalibrationError(
-            f"rotations all about a single axis: every relative rotation >= {limits.min_rotation_deg:g} deg "
-            f"is within {spread_deg:.2f} deg of the axis {np.round(principal, 3).tolist()}, so the translation "
-            f"along it is unobservable; also rotate about an axis at least {limits.min_axis_spread_deg:g} deg away"
+            f"rotations all about a single axis: every relative rotation >= {min_rotation_deg:g} deg "
+            f"is within {math.degrees(spread_rad):.2f} deg of the axis {np.round(principal, 3).tolist()}, so the "
+            f"translation along it is unobservable; also rotate about an axis at least "
+            f"{math.degrees(limits.min_axis_spread_rad):g} deg away"
         )
-    mismatch_deg = np.degrees(np.abs(angle_A[informative] - angle_B[informative]))
-    median_mismatch = float(np.median(mismatch_deg))
-    if median_mismatch > limits.max_angle_mismatch_deg:
+    median_mismatch_rad = float(np.median(np.abs(angle_A[informative] - angle_B[informative])))
+    if median_mismatch_rad > limits.max_angle_mismatch_rad:
         raise CalibrationError(
             f"robot and camera rotations disagree: the median difference of their relative rotation angles is "
-            f"{median_mismatch:.2f} deg (> {limits.max_angle_mismatch_deg:g}); are the robot poses and the board "
-            "poses paired view by view?"
+            f"{math.degrees(median_mismatch_rad):.2f} deg (> {math.degrees(limits.max_angle_mismatch_rad):g}); "
+            "are the robot poses and the board poses paired view by view?"
         )
 
 

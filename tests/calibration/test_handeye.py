@@ -14,9 +14,11 @@ from calibration.board import solve_board_pose
 from calibration.errors import CalibrationError
 from calibration.handeye import (
     REFINED,
+    DegeneracyLimits,
     HandEyeMode,
     HandEyeResult,
     RefineParams,
+    check_motion,
     solve_hand_eye,
     solve_hand_eye_from_observations,
 )
@@ -243,6 +245,18 @@ def test_degenerate_motion_is_refused_with_its_reason(cell, tool_poses, reason):
     X_base_tool, X_camera_board = _views_from_tool_poses(cell, tool_poses)
     with pytest.raises(CalibrationError, match=reason):
         solve_hand_eye(X_base_tool, X_camera_board)
+
+
+def test_the_motion_limits_are_radians_and_the_messages_say_degrees(cell):
+    # rotations of 3 deg about x and about y: the largest relative rotation is 3 * sqrt(2) = 4.24 deg
+    poses = [_tool_pose([3 * (i % 2), 3 * (i // 2 % 2), 0], [0.5 + 0.05 * i, 0.02 * i, 0.5]) for i in range(6)]
+    H, X_camera_board = _views_from_tool_poses(cell, poses)
+    assert DegeneracyLimits().min_rotation_rad == pytest.approx(np.radians(5.0))
+    with pytest.raises(CalibrationError, match=r"is 4\.24 deg \(< 5 deg\)"):
+        check_motion(np.array(H), np.array(X_camera_board), limits=DegeneracyLimits())
+    check_motion(np.array(H), np.array(X_camera_board), limits=DegeneracyLimits(min_rotation_rad=np.radians(4.2)))
+    with pytest.raises(CalibrationError, match=r"\(< 4\.3 deg\)"):
+        check_motion(np.array(H), np.array(X_camera_board), limits=DegeneracyLimits(min_rotation_rad=np.radians(4.3)))
 
 
 def test_single_axis_is_refused_even_about_a_tilted_axis(cell):
