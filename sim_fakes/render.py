@@ -538,29 +538,7 @@ def render(
     X_cw = invert_X(X_wc)
     gts = list(visible_ground_truth(scene, X_wc, rules=rules, caster=caster))
 
-    # surfaces and prompts: one pixel deep inside each visible workpiece face
-    import cv2
-
-    surfaces: list[tuple[int, int]] = []
-    labels = np.full(depth.shape, -1, np.int32)
-    prompts: list[tuple[float, float]] = []
-    pairs = sorted({(int(p), int(f)) for p, f in zip(part_idx.ravel(), face_idx.ravel(), strict=True) if p >= 0})
-    for p, f in pairs:
-        if not scene.parts[p].workpiece:
-            continue
-        mask = (part_idx == p) & (face_idx == f)
-        if mask.sum() < PROMPT_MIN_PIXELS:
-            continue
-        # the most interior pixel of the face (as an operator would click), among those with depth:
-        # dropouts at grazing angles must not hide a face whose seam is in the ground truth
-        dist = cv2.distanceTransform(np.pad(mask, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
-        dist[~np.isfinite(z)] = 0.0
-        if dist.max() < 2.0:
-            continue
-        v, u = np.unravel_index(int(np.argmax(dist)), dist.shape)
-        labels[mask] = len(surfaces)
-        surfaces.append((p, f))
-        prompts.append((float(u), float(v)))
+    labels, surfaces, prompts = _face_prompts(scene, part_idx, face_idx, z)
 
     intr = CameraIntrinsics(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
     X_base_tool = X_tool_camera = None
@@ -591,3 +569,33 @@ def render(
         X_world_camera=X_wc,
         ground_truth=tuple(gts),
     )
+
+
+def _face_prompts(
+    scene: Scene, part_idx: NDArray[np.int32], face_idx: NDArray[np.int32], z: FloatArray
+) -> tuple[NDArray[np.int32], list[tuple[int, int]], list[tuple[float, float]]]:
+    """One prompt per visible workpiece face, one pixel deep inside it (as an operator would click): the (H, W)
+    surface labels (-1 elsewhere), the (part, face) of each label and the prompts' pixels (u, v)."""
+    import cv2
+
+    surfaces: list[tuple[int, int]] = []
+    labels = np.full(part_idx.shape, -1, np.int32)
+    prompts: list[tuple[float, float]] = []
+    pairs = sorted({(int(p), int(f)) for p, f in zip(part_idx.ravel(), face_idx.ravel(), strict=True) if p >= 0})
+    for p, f in pairs:
+        if not scene.parts[p].workpiece:
+            continue
+        mask = (part_idx == p) & (face_idx == f)
+        if mask.sum() < PROMPT_MIN_PIXELS:
+            continue
+        # the most interior pixel of the face, among those with depth: dropouts at grazing angles must not hide
+        # a face whose seam is in the ground truth
+        dist = cv2.distanceTransform(np.pad(mask, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
+        dist[~np.isfinite(z)] = 0.0
+        if dist.max() < 2.0:
+            continue
+        v, u = np.unravel_index(int(np.argmax(dist)), dist.shape)
+        labels[mask] = len(surfaces)
+        surfaces.append((p, f))
+        prompts.append((float(u), float(v)))
+    return labels, surfaces, prompts
