@@ -7,6 +7,12 @@ import argparse
 import json
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from rich.console import Console
+
+    from cell.seam_bench import BenchReport
 
 
 def add_options(p: argparse.ArgumentParser) -> None:
@@ -34,7 +40,6 @@ def _f(x: float, nd: int = 3) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
-    from rich.table import Table
 
     from cell.seam_bench import SWEEP_VOXELS_MM, plot, run_bench
     from sim_fakes.scenes import SCENES
@@ -68,6 +73,17 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(report.to_json(), indent=1))
         return 0
 
+    _print_tables(console, report)
+    for line in summary_lines(report, methods):
+        console.print(line)
+    console.print(f"wrote {out / 'bench.json'} and {out / 'bench.png'}")
+    return 0
+
+
+def _print_tables(console: Console, report: BenchReport) -> None:
+    """Tables I and II and the voxel sweep."""
+    from rich.table import Table
+
     t1 = Table(title="Table I: seams, compute time, time per seam, accuracy (mm)")
     for c in ("scene", "noise", "seed", "method", "seams found", "false", "coverage", "time s", "s/seam", "RMSE",
               "p95", "max"):  # fmt: skip
@@ -92,7 +108,12 @@ def run(args: argparse.Namespace) -> int:
         t3.add_row(r.scene, f"{r.voxel_mm:g}", r.method, str(r.points_down), f"{r.found}/{r.truth}",
                    _f(r.rmse_mm), _f(r.max_mm), _f(r.time_s))  # fmt: skip
     console.print(t3)
-    # the summary the issue's targets are stated in, per method (the paper's method is the baseline)
+
+
+def summary_lines(report: BenchReport, methods: list[str]) -> list[str]:
+    """The figures the issue's targets are stated in, one line per method but the paper's (the baseline), and the
+    crop's effect on ribs under stereo noise when both crop rows are there."""
+    lines: list[str] = []
     for method in [m for m in methods if m != "paper"]:
         ref = [r for r in report.table1 if r.method == method]
         stereo = [r for r in ref if r.noise == "stereo"]
@@ -102,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         lin = [r.linear_rmse_mm for r in stereo if math.isfinite(r.linear_rmse_mm)]
         lin_max = [r.linear_max_mm for r in stereo if math.isfinite(r.linear_max_mm)]
         cur = [r.curved_rmse_mm for r in stereo if math.isfinite(r.curved_rmse_mm)]
-        console.print(
+        lines.append(
             f"summary ({method}): {found}/{truth} seams found, {false} false; stereo linear RMSE worst "
             f"{_f(max(lin) if lin else float('nan'))} mm, max {_f(max(lin_max) if lin_max else float('nan'))} mm; "
             f"curved RMSE {_f(max(cur) if cur else float('nan'))} mm"
@@ -111,10 +132,9 @@ def run(args: argparse.Namespace) -> int:
     if len(ribs) == 2:
         cropped = next(r for r in ribs if r.crop)
         uncropped = next(r for r in ribs if not r.crop)
-        console.print(
+        lines.append(
             f"ribs (10 seams, 1280x720, stereo): median {_f(cropped.time_s)} s; crop removes "
             f"{(1 - cropped.points_cropped / max(cropped.points_raw, 1)) * 100:.1f}% of the points; fine stage "
             f"{_f(uncropped.fine_s / max(cropped.fine_s, 1e-9), 1)}x faster than --no-crop"
         )
-    console.print(f"wrote {out / 'bench.json'} and {out / 'bench.png'}")
-    return 0
+    return lines
