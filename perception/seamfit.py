@@ -346,8 +346,8 @@ def fit_edge_path(edge_points: FloatArray, params: SeamParams, voxel_m: float) -
     return "curved", dense
 
 
-# Over 80 lines with its docstring: steps 2 and 3 below are one loop over a dozen shared variables (faces, line,
-# window, extent); split apart they would be passed back and forth, and the algorithm would be harder to follow.
+# long: steps 2 and 3 below are one loop over a dozen shared variables (faces, line, window, extent); split apart
+# they would be passed back and forth, and the algorithm would be harder to follow.
 def refine_linear(
     full: FullRes,
     ra: int | tuple[int, ...],

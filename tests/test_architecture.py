@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.house_size import MAX_FUNCTION_LINES, MAX_MODULE_LINES, long_functions, long_modules, python_files
+
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "architecture.md"
 PACKAGES = ("calibration", "cell", "drivers", "perception", "sim_fakes")
@@ -133,3 +135,55 @@ def test_the_table_names_only_modules_that_exist_and_every_package() -> None:
 def test_the_rule_reads_the_table_as_written(arrow: Arrow, allowed: bool) -> None:
     rows = allowed_arrows(DOC.read_text(encoding="utf-8"))
     assert is_allowed(arrow, rows, existing_modules()) is allowed
+
+
+KNOWN_LONG: frozenset[str] = frozenset(
+    {
+        # issue 15, left to their owners this session: split them, or give the reason with "# long:" at the def
+        "cell/zoo_bench.py:score_capture",  # the lead's zoo scoring
+        "perception/fine/gaps.py:inner_gap_seams",  # the lead's surfaces pipeline
+        "sim_fakes/fake_ur/controller.py:Controller.dashboard",  # hw2's fake UR: its reason sits in its body
+    }
+)
+"""Functions over the limit without a ``# long:`` reason, by "path:qualified name"; the list only shrinks."""
+
+
+def test_no_function_over_80_lines_without_a_reason_and_no_module_over_700() -> None:
+    files = python_files()
+    unexplained = {f"{f.path.relative_to(REPO)}:{f.name}": f for p in files for f in long_functions(p) if not f.reason}
+    new = sorted(str(f) for key, f in unexplained.items() if key not in KNOWN_LONG)
+    assert new == [], (
+        f"functions over {MAX_FUNCTION_LINES} lines: split them, or say why on the def line with '# long: ...':\n"
+        + "\n".join(new)
+    )
+    assert sorted(KNOWN_LONG - set(unexplained)) == [], "no longer long or now explained: remove from KNOWN_LONG"
+    assert [f"{p.relative_to(REPO)}: {n} lines" for p, n in long_modules(files)] == [], (
+        f"modules over {MAX_MODULE_LINES} lines: split them by idea"
+    )
+
+
+def test_the_size_rules_count_what_they_say(tmp_path: Path) -> None:
+    body = "\n".join(f"    x{i} = {i}" for i in range(79))
+    short = f"def short():\n{body}\n"  # 80 lines with its def
+    long = f"@staticmethod\ndef long():\n{body}\n    return 0\n"  # 82 with the decorator
+    why = f"class C:\n    # long: a table of cases\n    def why(self):\n{body}\n        return 0\n"
+    path = tmp_path / "m.py"
+    path.write_text(short + long + why.replace("\n    x", "\n        x"), encoding="utf-8")
+    found = {(f.name, f.lines, f.reason) for f in long_functions(path)}
+    assert found == {("long", 82, None), ("C.why", 81, "a table of cases")}  # short (80) is within the rule
+    assert long_modules([path], limit=245) == [] and long_modules([path], limit=244) == [(path, 245)]
+
+
+def documented_modules(text: str) -> list[str]:
+    m = re.search(r"<!-- modules:.*?-->\n(.*?)<!-- end of modules -->", text, flags=re.S)
+    if m is None:
+        raise AssertionError(f"{DOC}: no module tables between '<!-- modules: ...-->' and '<!-- end of modules -->'")
+    return re.findall(r"^\| `([\w.]+)` \|", m.group(1), flags=re.M)
+
+
+def test_the_document_names_every_module_once_and_no_other() -> None:
+    documented = documented_modules(DOC.read_text(encoding="utf-8"))
+    modules = {module_name(p) for package in PACKAGES for p in (REPO / package).rglob("*.py") if p.stem != "__init__"}
+    assert sorted(m for m in modules if m not in documented) == [], "modules docs/architecture.md does not list"
+    assert sorted(m for m in documented if m not in modules) == [], "docs/architecture.md lists modules that are gone"
+    assert len(documented) == len(set(documented))
