@@ -340,6 +340,7 @@ def build_camera(config: CellConfig, *, robot: Robot, track: Track | None) -> Ca
             max_depth_m=cc.max_depth_m,
             min_valid_depth_share=cc.min_valid_depth_share,
         )
+    from sim_fakes.board_render import RenderParams
     from sim_fakes.fake_camera import BoardTarget, FakeCamera
     from sim_fakes.scenes import SCENES
 
@@ -361,11 +362,11 @@ def build_camera(config: CellConfig, *, robot: Robot, track: Track | None) -> Ca
                 "[hand_eye.calibration.board]; add that table"
             )
         assert cc.X_base_board is not None  # the config refuses the charuco scene without it
-        imaging: dict[str, Any] = {"blur_sigma_px": cc.blur_sigma_px, "noise_gray": cc.image_noise}
+        imaging: dict[str, Any] = {"blur_sigma_px": cc.blur_sigma_px, "noise_sigma": cc.image_noise}
         placement["board"] = BoardTarget(
             board=calibration.board.spec(),
             X_base_board=np.asarray(cc.X_base_board, dtype=np.float64),
-            **{key: value for key, value in imaging.items() if value is not None},
+            imaging=RenderParams(**{key: value for key, value in imaging.items() if value is not None}),
         )
     return FakeCamera(
         cc.scene,

@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -118,6 +117,8 @@ def render_view(
     convention). Without distortion the picture is warped by the plane homography; with distortion
     each image pixel's ray is intersected with the board plane and the picture is remapped.
     """
+    import cv2  # here: a RenderParams alone (the fake camera's board settings) needs no OpenCV
+
     X = check_X(X_camera_board, name="X_camera_board")
     K_arr = np.asarray(K, dtype=np.float64)
     dist_arr = np.zeros(5) if dist is None else np.asarray(dist, dtype=np.float64).reshape(-1)

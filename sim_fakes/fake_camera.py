@@ -42,9 +42,9 @@ import logging
 import os
 import threading
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -55,11 +55,9 @@ from drivers.protocols import Robot, Track
 from perception.capture import CameraIntrinsics, Capture, load_capture
 from perception.errors import BadCapture
 from perception.transforms import check_X, invert_X, make_X
+from sim_fakes.board_render import BoardPicture, RenderParams
 from sim_fakes.render import NOISE_MODELS, SIM_DEPTH_SCALE, X_BASE_WORLD, X_TOOL_CAMERA, NoiseModel, render
 from sim_fakes.scenes import CameraSetup, Scene, get_scene, with_resolution
-
-if TYPE_CHECKING:
-    from sim_fakes.board_render import BoardPicture
 
 logger = logging.getLogger(__name__)
 
@@ -80,32 +78,17 @@ class BoardTarget:
 
     ``board``: the board's definition (a ``calibration.board.CharucoBoardSpec``, or anything that draws its
     picture: :class:`sim_fakes.board_render.BoardPicture`). ``X_base_board``: (4, 4) its pose in the robot base
-    frame with the track at 0, metres (board z points away from the printed face, into the table).
-    ``blur_sigma_px``: Gaussian lens blur, pixels. ``noise_gray``: sensor noise, gray levels (of 255).
-    ``background``: gray level around the board. ``supersample``: rendering factor (area-averaged down).
-    ``board_px_per_m``: resolution of the board picture that is warped (keep it above the projected resolution
-    times ``supersample``).
+    frame with the track at 0, metres (board z points away from the printed face, into the table). ``imaging``:
+    supersampling, lens blur, sensor noise, background and the picture's resolution
+    (:class:`sim_fakes.board_render.RenderParams`, which checks them).
     """
 
     board: BoardPicture
     X_base_board: FloatArray
-    blur_sigma_px: float = 0.6
-    noise_gray: float = 2.0
-    background: int = 90
-    supersample: int = 3
-    board_px_per_m: float = 8000.0
+    imaging: RenderParams = field(default_factory=RenderParams)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "X_base_board", check_X(self.X_base_board, name="X_base_board"))
-        if self.blur_sigma_px < 0 or self.noise_gray < 0:
-            raise ValueError(
-                f"blur_sigma_px and noise_gray must be >= 0, got {self.blur_sigma_px} and {self.noise_gray}"
-            )
-        if not 0 <= self.background <= 255 or self.supersample < 1 or self.board_px_per_m <= 0:
-            raise ValueError(
-                f"need 0 <= background <= 255, supersample >= 1 and board_px_per_m > 0, got {self.background}, "
-                f"{self.supersample}, {self.board_px_per_m}"
-            )
 
 
 @dataclass(frozen=True)
@@ -218,7 +201,7 @@ class FakeCamera:
             b = self.board
             return (
                 f"scene {self.scene.name} ({b.board.squares_x}x{b.board.squares_y} board), {cam.width}x{cam.height}, "
-                f"blur {b.blur_sigma_px:g} px, noise {b.noise_gray:g} gray levels"
+                f"blur {b.imaging.blur_sigma_px:g} px, noise {b.imaging.noise_sigma:g} gray levels"
             )
         return f"scene {self.scene.name}, {cam.width}x{cam.height}, noise {self.noise}"
 
@@ -282,20 +265,12 @@ class FakeCamera:
         return invert_X(self.X_world_camera()) @ X_world_board
 
     def _board_frame(self, index: int) -> _Frame:
-        # Imported here: only the board scene needs OpenCV.
-        from sim_fakes.board_render import RenderParams, board_picture, render_view
+        from sim_fakes.board_render import board_picture, render_view
 
         assert self.board is not None
-        b = self.board
-        params = RenderParams(
-            supersample=b.supersample,
-            blur_sigma_px=b.blur_sigma_px,
-            noise_sigma=b.noise_gray,
-            background=b.background,
-            board_px_per_m=b.board_px_per_m,
-        )
+        params = self.board.imaging
         if self._board_picture is None:
-            self._board_picture = board_picture(b.board, params)
+            self._board_picture = board_picture(self.board.board, params)
         cam = self.scene.camera
         intrinsics = CameraIntrinsics(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
         X_camera_board = self.X_camera_board()

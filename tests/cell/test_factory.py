@@ -21,6 +21,7 @@ from drivers.errors import DriverError
 from drivers.fanuc import FanucRobot
 from drivers.track import ModbusTrack
 from drivers.ur import URRobot
+from sim_fakes.board_render import RenderParams
 from sim_fakes.fake_camera import FakeCamera
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -51,7 +52,7 @@ def test_the_ur_calibration_example_shows_the_configured_board_to_the_fake_camer
     board = config.hand_eye.calibration.board.spec()
     assert cell.camera.board is not None and cell.camera.board.board == board
     np.testing.assert_allclose(cell.camera.board.X_base_board, config.camera.X_base_board)
-    assert (cell.camera.board.blur_sigma_px, cell.camera.board.noise_gray) == (0.6, 2.0)
+    assert cell.camera.board.imaging == RenderParams(blur_sigma_px=0.6, noise_sigma=2.0)  # the example's keys
     assert cell.camera.describe().startswith(f"scene charuco ({board.squares_x}x{board.squares_y} board), 640x360")
 
 
