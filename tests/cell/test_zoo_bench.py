@@ -4,8 +4,6 @@ the scorer counts exactly, and the CLI prints the documented JSON. Accuracy figu
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -50,14 +48,14 @@ def test_the_pass_rule_is_every_seam_no_false_rmse_and_max() -> None:
     assert not CaptureScore(**base, found=2, false_seams=0, rmse_mm=0.2, max_mm=1.01).passed
 
 
-def test_bench_zoo_prints_the_documented_json(cache: Path, tmp_path: Path) -> None:
-    out = subprocess.run(
-        [sys.executable, "-m", "cell.cli", "bench", "zoo", "--split", "dev", "--n", "2", "--families", "butt,pipe",
-         "--cache", str(cache), "--json", "--out", str(tmp_path / "out")],
-        capture_output=True, text=True, timeout=300, check=False,
-    )  # fmt: skip
-    assert out.returncode == 0, out.stderr
-    doc = json.loads(out.stdout)
+def test_bench_zoo_prints_the_documented_json(cache: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from cell.cli import main  # in this process (one job): the captures are those the tests above rendered
+
+    code = main(["bench", "zoo", "--split", "dev", "--n", "2", "--families", "butt,pipe", "--cache", str(cache),
+                 "--json", "--out", str(tmp_path / "out")])  # fmt: skip
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    doc = json.loads(out.out)
     assert doc["split"] == "dev" and doc["captures"] == 2
     assert set(doc["families"]) == {"butt", "pipe"}
     for fam in doc["families"].values():
@@ -70,10 +68,10 @@ def test_bench_zoo_prints_the_documented_json(cache: Path, tmp_path: Path) -> No
     assert len(list((tmp_path / "out" / "gallery").glob("*.png"))) == 2
 
 
-def test_bench_zoo_refuses_an_unknown_family() -> None:
-    out = subprocess.run([sys.executable, "-m", "cell.cli", "bench", "zoo", "--families", "teapot"],
-                         capture_output=True, text=True, timeout=60, check=False)  # fmt: skip
-    assert out.returncode == 2 and "teapot" in out.stdout
+def test_bench_zoo_refuses_an_unknown_family(capsys: pytest.CaptureFixture[str]) -> None:
+    from cell.cli import main  # in this process: a refusal needs no interpreter of its own
+
+    assert main(["bench", "zoo", "--families", "teapot"]) == 2 and "teapot" in capsys.readouterr().out
 
 
 def test_errors_are_measured_to_the_whole_seam_and_the_stretch_beyond_the_seen_run_is_overreach(
