@@ -6,6 +6,7 @@ and ``weldcell calibrate board``."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
 import signal
@@ -13,6 +14,7 @@ import subprocess
 import sys
 import threading
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +33,21 @@ def weldcell(*args: str) -> list[str]:
 
 def run_weldcell(*args: str, stdin: str = "", timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run(weldcell(*args), cwd=REPO, input=stdin, capture_output=True, text=True, timeout=timeout_s)
+
+
+def run_in_process(capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture, *args: str):
+    """``weldcell ARGS`` through ``cell.cli.main`` in this process, for commands that start no device: the same exit
+    code, stdout and stderr (log records at WARNING and above, which the command line prints, count as stderr)."""
+    from cell.cli import main
+
+    caplog.set_level(logging.WARNING)
+    try:
+        code = main(list(args))
+    except SystemExit as exit_:  # argparse's own refusals
+        code = exit_.code if isinstance(exit_.code, int) else 1
+    out = capsys.readouterr()
+    logged = "".join(f"{r.levelname} {r.name}: {r.getMessage()}\n" for r in caplog.records)
+    return subprocess.CompletedProcess(["weldcell", *args], code, out.out, out.err + logged)
 
 
 def files_in(folder: Path) -> dict[str, bytes]:
@@ -195,29 +212,29 @@ def test_declining_the_plan_exits_1_and_moves_nothing(tmp_path: Path) -> None:
 
 
 @pytest.mark.timeout(30)
-def test_config_mistakes_exit_2(tmp_path: Path) -> None:
-    result = run_weldcell("calibrate", "hand-eye", "--config", str(REPO / "examples" / "sim-cell-fanuc.toml"))
+def test_config_mistakes_exit_2(tmp_path: Path, capsys, caplog) -> None:
+    run = partial(run_in_process, capsys, caplog)  # nothing starts before these refusals: no interpreter of its own
+    result = run("calibrate", "hand-eye", "--config", str(REPO / "examples" / "sim-cell-fanuc.toml"))
     assert result.returncode == 2
     assert one_line(result.stderr) == (
         f"weldcell calibrate: {REPO / 'examples' / 'sim-cell-fanuc.toml'}: hand_eye.calibration: missing; the "
         "wizard needs the board, its nominal pose and the workspace there (see examples/sim-calib.toml)"
     )
     config = calib_config(tmp_path)
-    result = run_weldcell("calibrate", "hand-eye", "--config", str(config), "--poses", "4")
+    result = run("calibrate", "hand-eye", "--config", str(config), "--poses", "4")
     assert result.returncode == 2
     assert one_line(result.stderr) == "weldcell calibrate: --poses 4 is below min_views = 6 of [hand_eye.calibration]"
     inline = calib_config(tmp_path, result_file=None, name="inline.toml")
-    result = run_weldcell("calibrate", "hand-eye", "--config", str(inline))
+    result = run("calibrate", "hand-eye", "--config", str(inline))
     assert result.returncode == 2
     assert "X_tool_camera is given inline, so there is no result file to update; give --out FILE" in result.stderr
 
 
 @pytest.mark.timeout(30)
-def test_board_command_writes_a_printable_detectable_board(tmp_path: Path) -> None:
+def test_board_command_writes_a_printable_detectable_board(tmp_path: Path, capsys, caplog) -> None:
     out = tmp_path / "board.png"
-    result = run_weldcell(
-        "calibrate", "board", "--out", str(out), "--config", str(REPO / "examples" / "sim-calib.toml")
-    )
+    run = partial(run_in_process, capsys, caplog)  # the board command starts nothing: in this process
+    result = run("calibrate", "board", "--out", str(out), "--config", str(REPO / "examples" / "sim-calib.toml"))
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith(
         f"wrote {out}: 9x6 squares of 30 mm, markers 22 mm, DICT_5X5_100; board 270 x 180 mm"
@@ -232,6 +249,6 @@ def test_board_command_writes_a_printable_detectable_board(tmp_path: Path) -> No
     # seen straight on from 1 m by a camera with f = px_per_m: every corner is found
     K = np.array([[px_per_m, 0.0, image.shape[1] / 2], [0.0, px_per_m, image.shape[0] / 2], [0.0, 0.0, 1.0]])
     assert detect_board(image, board=board, K=K).n_corners == board.n_corners
-    result = run_weldcell("calibrate", "board", "--out", str(tmp_path / "b.png"), "--squares", "nine")
+    result = run("calibrate", "board", "--out", str(tmp_path / "b.png"), "--squares", "nine")
     assert result.returncode == 2
     assert one_line(result.stderr) == "weldcell calibrate: --squares must look like 9x6, got 'nine'"
