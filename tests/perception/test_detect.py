@@ -23,7 +23,7 @@ from perception.path import TorchParams, torch_poses
 from perception.seams import read_seams_json
 from perception.transforms import invert_X, transform_points, xyzquat_from_X
 from sim_fakes.render import RenderResult, render
-from sim_fakes.scenes import Scene, get_scene, t_joint
+from sim_fakes.scenes import Scene, get_scene, t_joint, with_resolution
 
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "ribs"
 
@@ -188,11 +188,12 @@ def test_cli_exit_codes(tmp_path: Path, capsys) -> None:
     assert main(["detect", str(tmp_path / "missing")]) == 2
     assert "does not exist" in capsys.readouterr().err
     base = t_joint()
-    scene = Scene("plate", "", base.parts[:2], (), base.camera)
+    # a capture without a seam, for the exit code only: 640x360 (the prompts of the 1280x720 view, halved)
+    scene = with_resolution(Scene("plate", "", base.parts[:2], (), base.camera), 640, 360)
     cap = render(scene, noise="none").capture
     from dataclasses import replace
 
-    save_capture(replace(cap, prompts_px=np.array([[640.0, 500.0], [300.0, 600.0]])), tmp_path / "plate")
+    save_capture(replace(cap, prompts_px=np.array([[320.0, 250.0], [150.0, 300.0]])), tmp_path / "plate")
     assert main(["detect", str(tmp_path / "plate")]) == 3
     err = capsys.readouterr().err
     assert "no seam found" in err and err.count("\n") == 1
