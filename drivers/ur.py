@@ -28,7 +28,15 @@ the dashboard server with the commands ur-rtde's ``DashboardClient`` sends: ``cl
 emergency stop (once its button is released) the arm is powered off: ``power on``, wait for robot mode IDLE,
 ``brake release``, wait for RUNNING; after a protective stop ``unlock protective stop`` (a CB3 refuses it for 5 s
 after the stop: the driver asks again until it is accepted or its timeout passes). A safety stop ends the ur-rtde
-control script, so it is uploaded again before the arm counts as ready.
+control script, so it is uploaded again before the arm counts as ready. A controller in a safety stop does not
+start a script, and ur-rtde waits for that start without a bound in ``moveL(path)`` (and fails its constructor
+after 5 s): :meth:`URRobot.connect` in a stop opens the control interface without uploading its script
+(``FLAG_NO_WAIT``, uploaded by ``reuploadScript`` once the stop is unlocked), and a stop that comes while a path's
+script is being uploaded ends :meth:`URRobot.stream_path` at once with :class:`ProtectiveStop`; the worker gives
+that control interface up (the state still comes from the receive interface) and the next motion or
+:meth:`URRobot.reset_faults` reconnects with a fresh worker. So the order of a recovery is: dashboard ``close
+safety popup``, ``unlock protective stop`` (again until 5 s after the stop), reconnect the control interface if
+it was given up, upload the control script and arm its watchdog.
 
 The controller-side watchdog (``heartbeat_timeout_s``, docs/controller-watchdogs.md): every control script this
 driver starts is told ``setWatchdog(1 / heartbeat_timeout_s)``, so the controller stops the program (the arm
@@ -258,6 +266,12 @@ class URRobot:
             return reply[1]
         kind, message = reply[1], reply[2]
         cause = URRTDEError(f"{kind}: {message}")
+        if kind == "SafetyStopDuringUpload":
+            stop_error = EmergencyStop if message.startswith("emergency") else ProtectiveStop
+            raise stop_error(
+                f"{self.name}: {message} at {self.host}; the arm did not start the path. Inspect the cause, then "
+                "reset_faults()"
+            ) from cause
         if kind == "ConnectionLost" or "connect" in message.lower() or "socket" in message.lower():
             raise ConnectionLost(f"{self.name}: connection to {self.host} lost during {op!r}: {message}") from cause
         raise DeviceFault(f"{self.name}: ur-rtde failed in {op!r} at {self.host}: {kind}: {message}") from cause
@@ -290,6 +304,7 @@ class URRobot:
             async_running=bool(raw["async_running"]),
             async_progress=int(raw["async_progress"]),
             control_ready=bool(raw["control_ready"]),
+            control_lost=str(raw["control_lost"]),
         )
 
     def state(self) -> RobotState:
@@ -377,7 +392,9 @@ class URRobot:
             accel_m_s2,
             blend_m,
         )
-        accepted = self._request("move_path", path, timeout_s=self._budget(deadline))
+        budget = self._budget(deadline)
+        # the worker gives up waiting for the path's script to start a little before this driver gives up on it
+        accepted = self._request("move_path", path, max(budget - 1.0, 0.5 * budget), timeout_s=budget)
         if not accepted:
             self._raise_refused("moveL path", targets[-1])
         self._follow_motion("moveL path", targets[-1], deadline, n_waypoints=len(path), on_progress=on_progress)
@@ -389,7 +406,7 @@ class URRobot:
                 log.debug("%s: stop while not connected: nothing to stop through this driver", self.name)
                 return
             st = self._status()
-            if not st.program_running or st.emergency_stop or st.protective_stop:
+            if not st.program_running or st.emergency_stop or st.protective_stop or st.control_lost:
                 log.debug("%s: stop: no control script running, the arm is not being moved", self.name)
                 return
             log.debug("%s: stopL at %.2f m/s^2", self.name, self.stop_decel_m_s2)
@@ -563,6 +580,10 @@ class URRobot:
 
     def _ready_for_motion(self, deadline: float) -> Status:
         st = self._status()
+        if st.control_lost:  # a safety stop came during a path upload: a fresh worker, fresh control interface
+            log.info("%s: reconnecting the control interface (%s)", self.name, st.control_lost)
+            self.connect()
+            st = self._status()
         self._raise_if_stopped(st, "before the motion")
         if st.robot_mode != ROBOT_MODE_RUNNING:
             robot_mode = ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))

@@ -20,7 +20,7 @@ from typing import Any
 
 from drivers.errors import ConnectionLost, DriverNotInstalled
 from drivers.protocols import FloatArray
-from drivers.ur_protocol import ESTOP_MASK, PROTECTIVE_MASK, RUNTIME_PLAYING
+from drivers.ur_protocol import ESTOP_MASK, PROTECTIVE_MASK, ROBOT_MODE_RUNNING, RUNTIME_PLAYING
 
 INSTALL_HINT = "ur-rtde is not installed: pip install 'ur-rtde>=1.5.8,<2' (it provides rtde_control, rtde_receive)"
 
@@ -39,6 +39,15 @@ RECEIVE_VARIABLES = (
 
 _MOVING_SPEED_M_S = 1e-4
 _MOVING_SPEED_RAD_S = 1e-3
+_UPLOAD_POLL_S = 0.004
+
+
+class SafetyStopDuringUpload(Exception):
+    """A protective or emergency stop came while ur-rtde waited for a path's control script to start.
+
+    ur-rtde's ``moveL(path)`` waits without a bound for the uploaded script to run, and a controller in a safety
+    stop never runs it; the waiting call is abandoned (with the control interface, see
+    :meth:`Worker.abandon_control`) and the driver reconnects on :meth:`drivers.ur.URRobot.reset_faults`."""
 
 
 def import_ur_rtde() -> tuple[ModuleType, ModuleType, ModuleType, ModuleType]:
@@ -72,12 +81,20 @@ class Worker:
         self.control: Any = None
         self.io: Any = None
         self.lock = threading.Lock()
+        self.control_lost = ""  # why the control interface was given up ('' while it is in use)
         self._heartbeat: threading.Thread | None = None
 
     def op_connect(self) -> dict[str, Any]:
         rtde_receive, rtde_control, rtde_io, _ = import_ur_rtde()
         self.receive = rtde_receive.RTDEReceiveInterface(self.host, -1.0, list(RECEIVE_VARIABLES))
-        self.control = rtde_control.RTDEControlInterface(self.host)
+        flags = rtde_control.RTDEControlInterface.Flags
+        if self._safety_stop() or self.receive.getRobotMode() != ROBOT_MODE_RUNNING:
+            # a controller in a safety stop (or with the arm not running) does not start the control script, and
+            # ur-rtde's constructor fails after waiting 5 s for it: connect without the upload;
+            # reset_faults unlocks the stop, then uploads the script (reuploadScript) and arms its watchdog
+            self.control = rtde_control.RTDEControlInterface(self.host, -1.0, flags.FLAG_NO_WAIT)
+        else:
+            self.control = rtde_control.RTDEControlInterface(self.host)
         self.io = rtde_io.RTDEIOInterface(self.host)
         if self.control.isProgramRunning():  # not after a safety stop: reset_faults uploads and arms it then
             self._arm_watchdog()
@@ -95,12 +112,31 @@ class Worker:
         if not self.control.setWatchdog(1.0 / self.heartbeat_timeout_s) and self.control.isProgramRunning():
             raise ConnectionLost("the running control script did not accept setWatchdog")
 
+    def _safety_stop(self) -> str:
+        """'protective' or 'emergency' while the receive interface shows that safety stop, else ''."""
+        bits = int(self.receive.getSafetyStatusBits())
+        if bits & ESTOP_MASK:
+            return "emergency"
+        return "protective" if bits & PROTECTIVE_MASK else ""
+
+    def abandon_control(self, reason: str) -> None:
+        """Give up the control interface (a call into it is stuck): every later control request fails, the state
+        comes from the receive interface alone, and the interface is disconnected in a thread of its own (ur-rtde
+        sleeps 0.5 s there) so that the stuck call can never see a program start and send its command."""
+        control, self.control_lost = self.control, reason
+        threading.Thread(target=control.disconnect, name="ur-control-abandoned", daemon=True).start()
+
+    def _control(self) -> Any:
+        if self.control_lost:
+            raise ConnectionLost(f"the control interface was given up ({self.control_lost}); reconnect")
+        return self.control
+
     def _beat(self) -> None:
         period = (self.heartbeat_timeout_s or 1.0) / 6.0
         while True:
             time.sleep(period)
             with self.lock:
-                control = self.control
+                control = None if self.control_lost else self.control
                 if control is not None and control.isConnected() and control.isProgramRunning():
                     control.kickWatchdog()
 
@@ -108,7 +144,8 @@ class Worker:
         r, c = self.receive, self.control
         if not r.isConnected():
             raise ConnectionLost("the RTDE receive connection closed")
-        status = c.getAsyncOperationProgressEx()
+        lost = self.control_lost
+        status = None if lost else c.getAsyncOperationProgressEx()
         return {
             "timestamp": r.getTimestamp(),
             "pose": list(r.getActualTCPPose()),
@@ -118,20 +155,29 @@ class Worker:
             "safety_status_bits": r.getSafetyStatusBits(),
             "runtime_state": r.getRuntimeState(),
             "digital_output_bits": r.getActualDigitalOutputBits(),
-            "control_connected": c.isConnected(),
-            "control_ready": c.isProgramRunning(),
-            "async_running": status.isAsyncOperationRunning(),
-            "async_progress": status.progress(),
+            "control_connected": bool(lost) or c.isConnected(),
+            "control_lost": lost,
+            "control_ready": not lost and c.isProgramRunning(),
+            "async_running": status is not None and status.isAsyncOperationRunning(),
+            "async_progress": status.progress() if status is not None else 0,
         }
 
     def op_move_linear(self, pose: list[float], speed: float, accel: float) -> bool:
-        return bool(self.control.moveL(pose, speed, accel, True))
+        return bool(self._control().moveL(pose, speed, accel, True))
 
-    def op_move_path(self, path: list[list[float]]) -> bool:
+    def op_move_path(self, path: list[list[float]], upload_timeout_s: float) -> bool:
         """ur-rtde uploads a new control script carrying the path, and a program stop drives the outputs that the
         installation sets low at a program stop (the arc) low. So: hold the arm with the speed slider at 0 while
         the new script starts the path, arm the new script's watchdog, switch back on what the upload switched
-        off, then let the arm go."""
+        off, then let the arm go.
+
+        ur-rtde waits without a bound for the uploaded script to start, which a controller in a safety stop never
+        does: the upload runs in a thread (ur-rtde releases the GIL there) watched from here, and a safety stop
+        seen meanwhile, or ``upload_timeout_s`` without a start, abandons it (:meth:`abandon_control`)."""
+        self._control()
+        stop = self._safety_stop()
+        if stop:
+            raise SafetyStopDuringUpload(f"{stop} stop before the path upload")
         bits_before = int(self.receive.getActualDigitalOutputBits())
         self.io.setSpeedSlider(0.0)
         try:
@@ -140,7 +186,7 @@ class Worker:
                 if time.monotonic() > deadline:
                     raise ConnectionLost("the speed slider did not read back 0 before the path upload")
                 time.sleep(0.004)
-            accepted = bool(self.control.moveL(path, True))
+            accepted = self._upload_path(path, upload_timeout_s)
             if accepted:
                 self._arm_watchdog()
                 time.sleep(0.02)  # two controller cycles: the receive stream shows what the program stop did
@@ -157,17 +203,39 @@ class Worker:
             self.io.setSpeedSlider(1.0)
         return accepted
 
+    def _upload_path(self, path: list[list[float]], timeout_s: float) -> bool:
+        control = self.control
+        result: list[bool] = []
+        upload = threading.Thread(
+            target=lambda: result.append(bool(control.moveL(path, True))), name="ur-path-upload", daemon=True
+        )
+        upload.start()
+        deadline = time.monotonic() + timeout_s
+        while True:
+            upload.join(_UPLOAD_POLL_S)
+            if not upload.is_alive():
+                if not result:
+                    raise ConnectionLost("ur-rtde's moveL(path) raised; see the worker's output")
+                return result[0]
+            stop = self._safety_stop()
+            if stop:
+                self.abandon_control(f"{stop} stop during the path upload")
+                raise SafetyStopDuringUpload(f"{stop} stop during the path upload")
+            if time.monotonic() > deadline:
+                self.abandon_control(f"the path's control script did not start within {timeout_s:.1f} s")
+                raise ConnectionLost(f"the path's control script did not start within {timeout_s:.1f} s")
+
     def op_stop(self, decel: float) -> None:
-        self.control.stopL(decel, False)
+        self._control().stopL(decel, False)
 
     def op_reupload(self) -> bool:
-        ok = bool(self.control.reuploadScript())
+        ok = bool(self._control().reuploadScript())
         if ok:
             self._arm_watchdog()
         return ok
 
     def op_set_digital_output(self, index: int, value: bool) -> bool:
-        return bool(self.io.setStandardDigitalOut(index, value))
+        return bool(self.io.setStandardDigitalOut(index, value))  # the IO interface: works while control is lost
 
     def op_dashboard(self, commands: list[str]) -> list[str]:
         _, _, _, dashboard_client = import_ur_rtde()
@@ -181,7 +249,7 @@ class Worker:
         return replies
 
     def op_close(self) -> None:
-        control = self.control
+        control = None if self.control_lost else self.control
         if control is not None and control.isConnected() and control.isProgramRunning():
             control.stopScript()
 
@@ -225,6 +293,7 @@ class Status:
     async_running: bool
     async_progress: int
     control_ready: bool  # the control interface's own view of the script: running
+    control_lost: str = ""  # why the worker gave its control interface up ('' while in use): reconnect first
 
     @property
     def emergency_stop(self) -> bool:

@@ -108,6 +108,7 @@ class Controller:
         self.release_after_boot = False  # "brake release" arrived while the arm was powered off or booting
         self.protective = False
         self.protective_since = 0.0
+        self.protective_on_next_program = False  # the fault injected to come with the next program's arrival
         self.estop_pressed = False
         self.estop_latched = False
         self.program: ControlScript | None = None
@@ -169,6 +170,9 @@ class Controller:
         self.stop_program(f"replaced by program {name!r}")
         self.record("program", name=name, chars=len(text))
         self.log.programs = [*self.log.programs[-4:], (name, text)]
+        if self.protective_on_next_program:
+            self.protective_on_next_program = False
+            self.protective_stop(f"injected as program {name!r} arrived")
         why_not = self.can_run()
         if why_not:
             self.log.errors.append(f"program {name!r} not started: {why_not}")

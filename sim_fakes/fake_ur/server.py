@@ -318,16 +318,21 @@ class FakeURServer:
         op = request[0]
         ctl = self.ctl
         if op == "inject":
-            fault, _params = request[1], request[2]
+            fault, params = request[1], request[2]
             if fault not in SUPPORTED_FAULTS:
                 raise ValueError(f"fault {fault!r} not supported; choose from {sorted(SUPPORTED_FAULTS)}")
-            ctl.record("fault", fault=fault)
+            unknown = set(params) - ({"on_next_program"} if fault == "protective_stop" else set())
+            if unknown:
+                raise ValueError(f"fault {fault!r} takes no parameter {sorted(unknown)}")
+            ctl.record("fault", fault=fault, **params)
             if fault == "drop_connection":
                 self.dropped = True
                 self.close_servers()
                 self.drop_clients()
             elif fault == "no_answer":
                 self.answering.clear()
+            elif fault == "protective_stop" and params.get("on_next_program"):
+                ctl.protective_on_next_program = True
             elif fault == "protective_stop":
                 ctl.protective_stop("injected")
             elif fault == "emergency_stop":

@@ -453,6 +453,46 @@ def test_reset_faults_unlocks_a_protective_stop_as_soon_as_the_controller_allows
 
 
 @pytest.mark.timeout(30)
+def test_protective_stop_during_the_path_upload_ends_the_path_at_once_and_reset_faults_reconnects(robot_and_fake):
+    """ur-rtde's moveL(path) waits without a bound for its script to start; a controller in a protective stop never
+    starts it (the fake stops as the path's script arrives): the driver must answer at once, keep reporting the
+    state while it does, and recover on reset_faults without the abandoned upload ever moving the arm."""
+    robot, fake = robot_and_fake
+    X0 = robot.get_X_base_tool()
+    path = [offset(X0, dz=0.002 * i) for i in range(1, 6)]
+    fake.inject("protective_stop", on_next_program=True)
+    readings: list[tuple[float, RobotMode]] = []
+    done = threading.Event()
+
+    def poll() -> None:
+        while not done.is_set():
+            t = time.monotonic()
+            mode = robot.state().mode
+            readings.append((time.monotonic() - t, mode))
+            time.sleep(0.01)
+
+    poller = threading.Thread(target=poll, daemon=True)
+    started = time.monotonic()
+    poller.start()
+    try:
+        with pytest.raises(ProtectiveStop, match="protective stop during the path upload"):
+            robot.stream_path(path, speed_m_s=0.1, timeout_s=10)
+        failed_after = time.monotonic() - started
+        time.sleep(0.1)
+    finally:
+        done.set()
+        poller.join(5.0)
+    assert failed_after < 1.0  # not the 5 s command timeout
+    assert max(latency for latency, _mode in readings) < 0.3  # state() never waited on the stuck upload
+    assert readings[-1][1] is RobotMode.PROTECTIVE_STOP
+    robot.reset_faults(timeout_s=10.0)
+    robot.stream_path(path, speed_m_s=0.1, timeout_s=10)
+    assert_pose_close(robot.get_X_base_tool(), path[-1])
+    time.sleep(0.1)
+    assert sum(e["kind"] == "path" for e in fake.events()) == 1  # the new script's path only
+
+
+@pytest.mark.timeout(30)
 def test_motion_timeout_stops_the_robot(robot_and_fake):
     robot, fake = robot_and_fake
     X0 = robot.get_X_base_tool()
