@@ -41,10 +41,11 @@ Without the switch these paths answer 404 and no fault switch exists in the proc
 Jobs wait in a FIFO queue; while the cell is in fault they wait for the acknowledgement. Everything goes to the
 journal (cell.journal); a job found queued or running when the daemon starts (it was killed) is reported as
 ``interrupted`` and never resumed, and when one was running the cell starts in ``fault`` ("unclean stop"): no
-motion before an operator's acknowledgement. :meth:`Daemon.shutdown` (SIGTERM, Ctrl-C) stops the motion and
-switches the arc off through the state machine's ``fault_now`` before anything else, cancels the queued jobs,
-then closes the devices and the journal; the arc output is then switched off once more and read back
-(:attr:`Daemon.arc_on_at_exit`).
+motion before an operator's acknowledgement. That fault is journaled: a daemon restarted again before anyone
+acknowledged starts in it too (:meth:`cell.journal.Journal.unclean_stop`, as ``weldcell run`` checks).
+:meth:`Daemon.shutdown` (SIGTERM, Ctrl-C) stops the motion and switches the arc off through the state machine's
+``fault_now`` before anything else, cancels the queued jobs, then closes the devices and the journal; the arc output
+is then switched off once more and read back (:attr:`Daemon.arc_on_at_exit`).
 
 Pause and resume: a pause stops the robot and the track where they are and switches the arc off at once (the
 state machine's ``request_pause``: the arm stands still, the arc is off, the job waits in ``paused``). Resume goes
@@ -183,12 +184,11 @@ class Daemon:
             logger.warning(
                 "job %d (%s) was interrupted by the previous daemon: not resumed", record.id, record.job_file
             )
-        unclean = [r.id for r in self.interrupted if r.started_s is not None]
-        if unclean:  # the torch may stand on the part: nothing moves before an operator has looked
-            self.runner.machine.fault_now(
-                f"unclean stop: job {', '.join(map(str, unclean))} was running when the previous daemon stopped; "
-                "check the torch and the part, then acknowledge (POST /acknowledge)"
-            )
+        # a job was running when the previous process stopped (this start found it, or an earlier one did and nobody
+        # acknowledged since): the torch may stand on the part, nothing moves before an operator has looked
+        unclean = self.journal.unclean_stop(then="acknowledge (POST /acknowledge)")
+        if unclean is not None:
+            self.runner.machine.fault_now(unclean)
         if self.sim is not None:
             logger.warning(
                 "test-only fault injection is on (/sim/faults) for the simulated %s", ", ".join(self.sim.injectors)

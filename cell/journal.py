@@ -32,6 +32,10 @@ from cell.errors import WeldcellError
 
 logger = logging.getLogger(__name__)
 
+UNCLEAN_STOP = "unclean stop:"
+"""How the reason of the fault after an unclean stop begins (:meth:`Journal.unclean_stop`)."""
+_CHECK = "check the torch and the part"
+
 JOB_STATES = ("queued", "running", "done", "failed", "cancelled", "dry_run", "interrupted")
 FINAL_JOB_STATES = frozenset({"done", "failed", "cancelled", "dry_run", "interrupted"})
 
@@ -281,6 +285,22 @@ class Journal:
         return [
             EventRecord(int(r[0]), None if r[1] is None else int(r[1]), float(r[2]), r[3], r[4], r[5]) for r in rows
         ]
+
+    def unclean_stop(self, *, then: str) -> str | None:
+        """Why the cell must start in ``fault``, or None: a job was running when the previous process stopped, found
+        by this open or by an earlier one and not acknowledged since (the last change outside jobs is that fault).
+        ``then``: what the operator does about it, ending the returned reason."""
+        unclean = [r.id for r in self.interrupted if r.started_s is not None]
+        if unclean:
+            jobs = ", ".join(map(str, unclean))
+            return f"{UNCLEAN_STOP} job {jobs} was running when the previous process stopped; {_CHECK}, then {then}"
+        for event in reversed(self.events(None)):  # newest first; later faults (a failed acknowledge) do not count
+            if event.from_state == "fault" and event.to_state != "fault":
+                return None  # the cell left fault since: acknowledged
+            if event.to_state == "fault" and event.reason.startswith(UNCLEAN_STOP):
+                known = event.reason.split(f"; {_CHECK}")[0]  # the instruction is this caller's own
+                return f"{known}; {_CHECK}, then {then}"
+        return None
 
     def recent_events(self, limit: int = 50) -> list[EventRecord]:
         """The ``limit`` latest state changes of any job, newest first."""

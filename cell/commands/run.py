@@ -16,10 +16,7 @@ import getpass
 import json
 import logging
 import sys
-from typing import TYPE_CHECKING, Any, TextIO
-
-if TYPE_CHECKING:
-    from cell.journal import Journal
+from typing import Any, TextIO
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -77,7 +74,7 @@ def run_job(args: argparse.Namespace) -> int:
         return operator if answer.strip().lower() in ("y", "yes") else None
 
     with Journal(journal_path) as journal, build_cell(config, start_simulators=True) as cell:
-        unclean = unclean_stop(journal)
+        unclean = journal.unclean_stop(then="run again with --acknowledge --operator NAME")
         cell.connect()
         runner = JobRunner(cell, journal=journal, on_progress=show)
         if unclean is not None:
@@ -102,21 +99,6 @@ def run_job(args: argparse.Namespace) -> int:
         return EXIT_NO_SEAM
     print(f"weldcell run: job {report.job_id} {report.outcome}: {report.reason}", file=sys.stderr)
     return EXIT_FAILURE
-
-
-def unclean_stop(journal: Journal) -> str | None:
-    """Why the cell must start in ``fault``, or None: a job was running when the previous process stopped (found
-    by this journal open, or by an earlier one and not acknowledged since: the cell's last event is that fault)."""
-    unclean = [r.id for r in journal.interrupted if r.started_s is not None]
-    if unclean:
-        return (
-            f"unclean stop: job {', '.join(map(str, unclean))} was running when the previous process stopped; "
-            "check the torch and the part, then run again with --acknowledge --operator NAME"
-        )
-    events = journal.events(None)
-    if events and events[-1].to_state == "fault" and events[-1].reason.startswith("unclean stop"):
-        return str(events[-1].reason)
-    return None
 
 
 def _login() -> str:

@@ -172,6 +172,37 @@ def test_jobs_submitted_over_http_run_in_order_and_are_reported(daemon: tuple[Da
     assert request(f"{base}/jobs/999")[0] == 404
 
 
+@pytest.mark.timeout(90)
+def test_an_unclean_stop_holds_the_cell_in_fault_over_restarts_until_acknowledged(tmp_path: Path) -> None:
+    config = cell_config(tmp_path, "sim-cell-fanuc.toml", daemon={"port": 0})
+    with Journal(config.resolve(config.daemon.journal)) as journal:  # a process that died while its job welded
+        crashed = journal.submit("ribs.toml")
+        journal.record_state_change(crashed, "idle", "homing", "job started", job_state="running")
+    for start in ("first", "second"):  # the second start: nobody acknowledged after the first
+        with Daemon(config) as d:
+            host, port = d.address
+            base = f"http://{host}:{port}"
+            st = request(f"{base}/status")[1]
+            assert st["state"] == "fault", start
+            assert st["fault_reason"].startswith(f"unclean stop: job {crashed} was running"), start
+            assert st["fault_reason"].endswith("then acknowledge (POST /acknowledge)")
+            X_before = d.cell.robot.get_X_base_tool()
+            status, answer = request(f"{base}/jobs?dry_run=1", method="POST", body=job_text().encode())
+            assert status == 201, answer
+            time.sleep(0.5)  # what would move, would have begun by now
+            assert job_state(base, int(answer["id"])) == "queued"
+            assert (d.cell.robot.get_X_base_tool() == X_before).all()  # not a micrometre
+    with Daemon(config) as d:  # acknowledged: the queue runs, and the next start is clean
+        host, port = d.address
+        base = f"http://{host}:{port}"
+        assert request(f"{base}/status")[1]["state"] == "fault"
+        status, answer = request(f"{base}/acknowledge", method="POST", body=b'{"operator": "ann"}')
+        assert status == 200 and answer["state"] == "idle", answer
+    with Daemon(config) as d:
+        host, port = d.address
+        assert request(f"http://{host}:{port}/status")[1]["state"] == "idle"
+
+
 @pytest.mark.timeout(30)
 def test_a_configured_token_is_required_and_a_non_loopback_host_needs_one(tmp_path: Path) -> None:
     data = tomllib.loads((EXAMPLES / "sim-cell-fanuc.toml").read_text(encoding="utf-8"))

@@ -8,7 +8,6 @@ from pathlib import Path
 import pytest
 
 from cell.cli import main
-from cell.commands.run import unclean_stop
 from cell.journal import Journal
 from tests.cell.test_runner import BARE_TABLE_CAPTURE, EXAMPLES, job_text
 
@@ -42,7 +41,8 @@ def test_an_unclean_stop_refuses_every_run_until_an_operator_acknowledges(
         assert journal.job(crashed).state == "interrupted" and journal.interrupted == ()
         [fault] = [e for e in journal.events(None) if e.to_state == "fault"]
         assert fault.reason.startswith(f"unclean stop: job {crashed}")
-        assert unclean_stop(journal) == fault.reason  # the next run is refused too: the fault is journaled
+        # the next run is refused too: the fault is journaled
+        assert journal.unclean_stop(then="run again with --acknowledge --operator NAME") == fault.reason
 
     # acknowledged: the job runs (no seam on the bare table: exit 3) and the cell is clean for the next run
     assert main(["run", str(job), "--config", str(config), "--acknowledge", "--operator", "ann"]) == 3
@@ -51,4 +51,4 @@ def test_an_unclean_stop_refuses_every_run_until_an_operator_acknowledges(
         cell_events = journal.events(None)
         assert cell_events[-1].from_state == "fault" and "acknowledged by ann" in cell_events[-1].reason
         assert len(journal.recent_jobs()) == 2
-        assert unclean_stop(journal) is None
+        assert journal.unclean_stop(then="acknowledge") is None
