@@ -197,10 +197,16 @@ class CellMachine:
     def state(self) -> CellState:
         return CellState(self._model.state)
 
-    def _fire(self, trigger: str, **kwargs: Any) -> bool:
+    def _fire(self, trigger: str, *, seen: CellState | None = None, **kwargs: Any) -> bool:
+        """Fire ``trigger`` under the lock. ``seen``: the state the caller decided on; when another thread (a
+        watchdog's :meth:`fault_now`, a pause) changed it since, that change won and the trigger is not fired
+        (False), instead of raising ``MachineError`` for a trigger the new state does not allow."""
         with self.lock:
             if self._interrupt is not None and trigger not in ("fail", "pause"):
                 self._apply_interrupt()
+                return False
+            if seen is not None and self.state is not seen:
+                logger.info("%s: %s meant for %s not fired: the cell is %s", self.name, trigger, seen, self.state)
                 return False
             return bool(self._model.trigger(trigger, **kwargs))
 
@@ -213,22 +219,27 @@ class CellMachine:
             "start_job", job_id=int(job_id), n_captures=n_captures, dry_run=bool(dry_run), reason="job started"
         )
 
-    def advance(self) -> bool:
+    def advance(self, *, seen: CellState | None = None) -> bool:
         """Do the current state's work and move on (homing, moving_to_capture, capturing, detecting, planning,
-        welding, retracting, calibrating)."""
-        return self._fire("advance", reason=f"{self.state.value} finished")
+        welding, retracting, calibrating). ``seen`` (the job runner's): only from that state (see :meth:`_fire`)."""
+        state = seen if seen is not None else self.state
+        return self._fire("advance", seen=seen, reason=f"{state.value} finished")
 
-    def approve(self, operator: str) -> bool:
+    def approve(self, operator: str, *, seen: CellState | None = None) -> bool:
         """The operator approves the planned path: welding starts with the next :meth:`advance`."""
-        return self._fire("approve", operator=_operator(operator), reason=f"path approved by {operator.strip()}")
+        reason = f"path approved by {operator.strip()}"
+        return self._fire("approve", seen=seen, operator=_operator(operator), reason=reason)
 
-    def reject(self, operator: str) -> bool:
+    def reject(self, operator: str, *, seen: CellState | None = None) -> bool:
         """The operator refuses the planned path: the job is cancelled, nothing moves."""
-        return self._fire("reject", operator=_operator(operator), reason=f"path rejected by {operator.strip()}")
+        reason = f"path rejected by {operator.strip()}"
+        return self._fire("reject", seen=seen, operator=_operator(operator), reason=reason)
 
-    def end_dry_run(self) -> bool:
+    def end_dry_run(self, *, seen: CellState | None = None) -> bool:
         """A dry run's path is planned and validated: the job ends (journaled ``dry_run``), nothing moved."""
-        return self._fire("end_dry_run", reason="dry run: path planned and validated, nothing moved or welded")
+        return self._fire(
+            "end_dry_run", seen=seen, reason="dry run: path planned and validated, nothing moved or welded"
+        )
 
     def resume(self) -> bool:
         """Back to the state that was paused."""

@@ -198,24 +198,24 @@ class JobRunner:
             state = m.state
             if state in FINAL_STATES:
                 return
+            # each trigger names the state it was chosen for: a watchdog's fault (or a pause) that changes the state
+            # in between wins, the trigger is not fired and the loop sees the new state (seen=, CellMachine._fire)
             if state is S.AWAITING_APPROVAL:
                 assert data.path is not None
                 if data.dry_run:
-                    m.end_dry_run()
+                    m.end_dry_run(seen=state)
                 elif not data.job.spec.approval:
-                    m.approve(AUTO_APPROVER)
+                    m.approve(AUTO_APPROVER, seen=state)
                 else:
                     who = approve(data.path) if approve is not None else None
                     if who and who.strip():
-                        m.approve(who)
+                        m.approve(who, seen=state)
                     else:
-                        m.reject("operator (approval refused or not given)")
+                        m.reject("operator (approval refused or not given)", seen=state)
             elif state is S.PAUSED:
                 time.sleep(0.05)  # resume() or abort() comes from another thread (the daemon)
-            else:
-                before = state
-                if m.advance():
-                    self._emit("state", state=m.state.value, reason=f"{before.value} finished")
+            elif m.advance(seen=state):
+                self._emit("state", state=m.state.value, reason=f"{state.value} finished")
 
     def switch_arc_off(self) -> None:
         """Switch the arc output off now (a service starting after a crash must not leave it on)."""

@@ -294,6 +294,27 @@ def test_an_invalid_trigger_is_the_callers_mistake_not_a_fault() -> None:
     assert machine.state is S.IDLE and cell.calls == []
 
 
+def test_a_fault_that_lands_between_choosing_a_trigger_and_firing_it_wins(journal: Journal) -> None:
+    """The job runner reads the state, then fires the trigger for it; a watchdog's fault_now can land in between.
+    With the state it chose from (``seen``) the trigger is not fired: the fault stands, no MachineError."""
+    machine, cell = make(journal)
+    job = journal.submit("j.toml")
+    machine.start_job(job)
+    seen = machine.state  # the runner chose advance for homing...
+    machine.fault_now("watchdog: robot: protective stop")  # ...and the watchdog's fault landed before it fired
+    assert machine.advance(seen=seen) is False
+    assert machine.state is S.FAULT
+    for trigger in (machine.end_dry_run, lambda seen: machine.approve("ann", seen=seen)):
+        assert trigger(seen=S.AWAITING_APPROVAL) is False  # the same for the triggers of awaiting_approval
+    assert machine.fault_reason == "watchdog: robot: protective stop"
+    assert "home" not in cell.names()  # homing's work never ran
+    record = journal.job(job)
+    assert (record.state, record.error) == ("failed", "watchdog: robot: protective stop")
+    assert transitions_of(journal, job) == [("idle", "homing"), ("homing", "fault")]
+    with pytest.raises(MachineError):  # without seen it is still the caller's mistake
+        machine.advance()
+
+
 # ------------------------------------------------------------------------------------------------ interruptions
 @pytest.mark.timeout(20)
 def test_fault_now_from_another_thread_stops_a_blocking_weld(journal: Journal) -> None:

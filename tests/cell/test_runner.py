@@ -491,6 +491,27 @@ def test_ten_dry_runs_back_to_back_leave_no_thread_behind_and_are_all_journaled(
     assert fanuc.runner.machine.state is CellState.IDLE
 
 
+@pytest.mark.timeout(60)
+def test_a_watchdog_fault_racing_advance_fails_the_job_and_the_journal_agrees(
+    fanuc: Rig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the interleaving forced: the runner has chosen advance from moving_to_capture, then the watchdog's fault lands
+    machine = fanuc.runner.machine
+    advance = machine.advance
+
+    def fault_first(**kwargs: Any) -> bool:
+        if machine.state is CellState.MOVING_TO_CAPTURE:
+            machine.fault_now("watchdog: robot: protective stop (landed before advance)")
+        return advance(**kwargs)
+
+    monkeypatch.setattr(machine, "advance", fault_first)
+    watch = fanuc.watch()
+    report = fanuc.runner.run(make_job(job_text()), dry_run=True)  # returns: no MachineError out of the runner
+    assert_fault(fanuc, report, words=("landed before advance",))
+    assert state_changes(fanuc.journal, report.job_id) == ["homing", "moving_to_capture", "fault"]
+    assert watch.motions() == 0  # the fake starts at home; the move to the capture pose was never sent
+
+
 # ---------------------------------------------------------------------------------------------- faults
 @on_both_robots
 @pytest.mark.timeout(90)
