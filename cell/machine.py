@@ -260,6 +260,12 @@ class CellMachine:
         """From any thread: stop motion and the arc now, then enter ``paused`` (once the activity returns)."""
         self._interrupt_now("pause", reason)
 
+    def pending_interruption(self) -> str | None:
+        """The reason of a pause or fault requested from another thread and not applied yet (the activity running
+        holds the lock), or None: an activity checks it at each motion boundary and stops there."""
+        with self._interrupt_lock:
+            return None if self._interrupt is None else f"{self._interrupt[0]}: {self._interrupt[1]}"
+
     def fault_now(self, reason: str) -> None:
         """From any thread (a watchdog, an e-stop input): stop motion and the arc now, then enter ``fault``."""
         self._interrupt_now("fault", reason)

@@ -50,7 +50,15 @@ from cell.planning import SeamPass, WeldParams, WeldPath, plan_weld_path
 from cell.safety import validate
 from cell.watchdog import FINAL_STATES, DeviceWatchdog
 from cell.world_seams import X_world_base, collect_seams
-from drivers.errors import ConnectionLost, DeviceTimeout, DriverError, EmergencyStop, ProtectiveStop, TrackFault
+from drivers.errors import (
+    ConnectionLost,
+    DeviceTimeout,
+    DriverError,
+    EmergencyStop,
+    MotionAborted,
+    ProtectiveStop,
+    TrackFault,
+)
 from drivers.protocols import RobotMode
 from perception.errors import NoSeamFound
 
@@ -280,7 +288,17 @@ class JobRunner:
     def _track_position(self) -> float:
         return self.cell.track.position_m() if self.cell.track is not None else 0.0
 
+    def _at_motion_boundary(self, what: str) -> None:
+        """Before a motion (or the arc going on): a pause or fault requested meanwhile stops the activity here.
+
+        Its stop found nothing moving between two motions; without this check the activity would go on to the
+        end of the weld before the pause took effect."""
+        pending = self.machine.pending_interruption()
+        if pending is not None:
+            raise MotionAborted(f"{pending}: stopped before {what}")
+
     def _move(self, X_base_tool: np.ndarray, speed_m_s: float, accel_m_s2: float, what: str) -> None:
+        self._at_motion_boundary(what)
         data = self._job()
         data.poses_sent += 1
         logger.debug("move_linear (%s) to %s m at %.3f m/s", what, np.round(X_base_tool[:3, 3], 4), speed_m_s)
@@ -295,6 +313,7 @@ class JobRunner:
         here = track.position_m()
         if abs(here - position_m) <= max(self.config.track.in_position_window_m, 1e-6):
             return
+        self._at_motion_boundary(f"the track move ({what})")
         self._note(f"track {here:.4f} m -> {position_m:.4f} m ({what})")
         track.move_to(position_m, speed_m_s=self.config.track.speed_m_s)
 
@@ -323,6 +342,7 @@ class JobRunner:
         self.cell.robot.set_digital_output(self._arc_index, False)
 
     def _arc_on(self) -> None:
+        self._at_motion_boundary("arc on")
         self.cell.robot.set_digital_output(self._arc_index, True)
         with self._arc_lock:
             self._arc_on_since = time.monotonic()
@@ -530,6 +550,7 @@ class JobRunner:
                     "weld", **{"pass": i + 1, "passes": n, "seam_id": p.seam_id, "pose": k + 1, "poses": len(rest)}
                 )
 
+            self._at_motion_boundary(f"pass {i + 1} travel")
             data.poses_sent += len(rest)
             self.cell.robot.stream_path(
                 [w.X_base_tcp for w in rest],

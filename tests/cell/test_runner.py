@@ -461,6 +461,51 @@ def test_a_pass_paused_mid_seam_resumes_where_it_stopped_with_the_arc_back_on(fa
     assert fanuc.arc_is_off()
 
 
+@pytest.mark.timeout(60)
+def test_a_pause_requested_between_two_motions_takes_effect_before_the_next_one(
+    fanuc: Rig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    runner, machine = fanuc.runner, fanuc.runner.machine
+    dout = DoutLog(fanuc.robot_fake)
+    seen: dict[str, Any] = {}
+    move = runner._move
+
+    def pause_then_resume() -> None:
+        machine.request_pause("operator pause")  # returns once the pause is applied
+        try:
+            seen["state"], seen["arc_off"] = machine.state, fanuc.arc_is_off()
+            seen["X_paused"] = fanuc.cell.robot.get_X_base_tool()
+            seen["motions"] = watch.motions()
+        finally:
+            seen["resumed"] = machine.resume()
+
+    def move_then_pause(X: np.ndarray, speed_m_s: float, accel_m_s2: float, what: str) -> None:
+        move(X, speed_m_s, accel_m_s2, what)
+        if what == "pass 1 approach" and "motions_at_request" not in seen:  # the arc-on move has not begun
+            seen["motions_at_request"] = watch.motions()
+            threading.Thread(target=pause_then_resume).start()
+            deadline = time.monotonic() + 5.0
+            while machine.pending_interruption() is None:  # the request is in: now the runner goes on
+                assert time.monotonic() < deadline, "the pause request never arrived"
+                time.sleep(0.001)
+
+    monkeypatch.setattr(runner, "_move", move_then_pause)
+    watch = fanuc.watch()
+    report = runner.run(make_job(job_text(min_length_m=0.1)))
+    assert (report.state, report.outcome) == ("done", "welded"), report
+    assert seen["state"] is CellState.PAUSED and seen["arc_off"] and seen["resumed"]
+    assert seen["motions"] == seen["motions_at_request"]  # paused before the arc-on move was sent
+    data = runner.current
+    assert data is not None and data.path is not None
+    first = data.path.passes[0]
+    assert np.linalg.norm(seen["X_paused"][:3, 3] - first.approach.X_base_tcp[:3, 3]) < 1e-4  # where it stood
+    changes = state_changes(fanuc.journal, report.job_id)
+    assert changes[changes.index("welding") :][:3] == ["welding", "paused", "welding"]
+    ons = [p for _port, on, p in dout.writes if on]  # the arc went on first at the arc-on pose, after the resume
+    assert len(ons) == len(data.path.passes)
+    assert np.linalg.norm(ons[0] - first.arc_on.X_base_tcp[:3, 3] * 1e3) <= 0.1
+
+
 @pytest.mark.timeout(30)
 def test_a_dry_run_plans_and_validates_and_moves_nothing(fanuc: Rig) -> None:
     job = make_job(job_text())
