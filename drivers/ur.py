@@ -394,7 +394,9 @@ class URRobot:
         )
         budget = self._budget(deadline)
         # the worker gives up waiting for the path's script to start a little before this driver gives up on it
-        accepted = self._request("move_path", path, max(budget - 1.0, 0.5 * budget), timeout_s=budget)
+        accepted = self._request(
+            "move_path", path, max(budget - 1.0, 0.5 * budget), self.stale_after_s, timeout_s=budget
+        )
         if not accepted:
             self._raise_refused("moveL path", targets[-1])
         self._follow_motion("moveL path", targets[-1], deadline, n_waypoints=len(path), on_progress=on_progress)

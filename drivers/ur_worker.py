@@ -96,6 +96,9 @@ class Worker:
         else:
             self.control = rtde_control.RTDEControlInterface(self.host)
         self.io = rtde_io.RTDEIOInterface(self.host)
+        # a path upload holds the arm with the speed slider at 0 (op_move_path); a link lost or a worker killed in
+        # that moment leaves it there on the controller, and every later motion would stand still
+        self.io.setSpeedSlider(1.0)
         if self.control.isProgramRunning():  # not after a safety stop: reset_faults uploads and arms it then
             self._arm_watchdog()
         if self.heartbeat_timeout_s is not None and self._heartbeat is None:
@@ -165,15 +168,16 @@ class Worker:
     def op_move_linear(self, pose: list[float], speed: float, accel: float) -> bool:
         return bool(self._control().moveL(pose, speed, accel, True))
 
-    def op_move_path(self, path: list[list[float]], upload_timeout_s: float) -> bool:
+    def op_move_path(self, path: list[list[float]], upload_timeout_s: float, stale_after_s: float) -> bool:
         """ur-rtde uploads a new control script carrying the path, and a program stop drives the outputs that the
         installation sets low at a program stop (the arc) low. So: hold the arm with the speed slider at 0 while
         the new script starts the path, arm the new script's watchdog, switch back on what the upload switched
         off, then let the arm go.
 
         ur-rtde waits without a bound for the uploaded script to start, which a controller in a safety stop never
-        does: the upload runs in a thread (ur-rtde releases the GIL there) watched from here, and a safety stop
-        seen meanwhile, or ``upload_timeout_s`` without a start, abandons it (:meth:`abandon_control`)."""
+        does, and neither does one that stopped answering: the upload runs in a thread (ur-rtde releases the GIL
+        there) watched from here, and a safety stop seen meanwhile, a receive stream that closed or stood still for
+        ``stale_after_s``, or ``upload_timeout_s`` without a start, abandons it (:meth:`abandon_control`)."""
         self._control()
         stop = self._safety_stop()
         if stop:
@@ -186,7 +190,7 @@ class Worker:
                 if time.monotonic() > deadline:
                     raise ConnectionLost("the speed slider did not read back 0 before the path upload")
                 time.sleep(0.004)
-            accepted = self._upload_path(path, upload_timeout_s)
+            accepted = self._upload_path(path, upload_timeout_s, stale_after_s)
             if accepted:
                 self._arm_watchdog()
                 time.sleep(0.02)  # two controller cycles: the receive stream shows what the program stop did
@@ -203,25 +207,35 @@ class Worker:
             self.io.setSpeedSlider(1.0)
         return accepted
 
-    def _upload_path(self, path: list[list[float]], timeout_s: float) -> bool:
-        control = self.control
+    def _upload_path(self, path: list[list[float]], timeout_s: float, stale_after_s: float) -> bool:
+        control, receive = self.control, self.receive
         result: list[bool] = []
         upload = threading.Thread(
             target=lambda: result.append(bool(control.moveL(path, True))), name="ur-path-upload", daemon=True
         )
         upload.start()
-        deadline = time.monotonic() + timeout_s
+        now = time.monotonic()
+        deadline = now + timeout_s
+        last_stamp, last_change = receive.getTimestamp(), now
         while True:
             upload.join(_UPLOAD_POLL_S)
             if not upload.is_alive():
                 if not result:
                     raise ConnectionLost("ur-rtde's moveL(path) raised; see the worker's output")
                 return result[0]
+            now = time.monotonic()
+            stamp = receive.getTimestamp() if receive.isConnected() else None
+            if stamp != last_stamp:
+                last_stamp, last_change = stamp, now
+            if stamp is None or now - last_change > stale_after_s:
+                lost = "closed" if stamp is None else f"stood still for {now - last_change:.2f} s"
+                self.abandon_control(f"the RTDE stream {lost} during the path upload")
+                raise ConnectionLost(f"the controller's RTDE stream {lost} during the path upload")
             stop = self._safety_stop()
             if stop:
                 self.abandon_control(f"{stop} stop during the path upload")
                 raise SafetyStopDuringUpload(f"{stop} stop during the path upload")
-            if time.monotonic() > deadline:
+            if now > deadline:
                 self.abandon_control(f"the path's control script did not start within {timeout_s:.1f} s")
                 raise ConnectionLost(f"the path's control script did not start within {timeout_s:.1f} s")
 

@@ -44,7 +44,8 @@ controller off the network (connections stay open, nothing is received, answered
 itself runs on, so its watchdogs see the host's silence), ``protective_stop`` and ``emergency_stop``
 halt motion at once and stop the program; an emergency stop also cuts the arm's power (robot mode POWER_OFF).
 ``inject("protective_stop", on_next_program=True)`` holds the stop back until the next program arrives on a script
-port (a stop in the moment a path's script is uploaded), which then does not start, as on a real controller.
+port (a stop in the moment a path's script is uploaded), which then does not start, as on a real controller;
+``inject("no_answer", on_next_program=True)`` likewise cuts the controller off as that program arrives.
 ``clear_faults()`` lifts the network faults and releases the emergency stop button; the stops stay latched as on a
 real controller: a protective stop until the dashboard's ``unlock protective stop`` (accepted
 ``protective_stop_unlock_delay_s`` after the stop, 5 s on a real CB3), an emergency stop until the arm is powered

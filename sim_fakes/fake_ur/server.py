@@ -132,6 +132,7 @@ class FakeURServer:
         self.answering = asyncio.Event()
         self.answering.set()
         self.dropped = False
+        self.no_answer_on_next_program = False  # no_answer injected to come with the next program's arrival
         self.finished = asyncio.Event()
         self.tasks: set[asyncio.Task[Any]] = set()
 
@@ -289,6 +290,11 @@ class FakeURServer:
                 for line in dropped:
                     self.ctl.log.errors.append(f"script line outside a program not run: {line[:80]!r}")
                 for name, text in programs:
+                    if self.no_answer_on_next_program:  # the controller goes silent as the program arrives
+                        self.no_answer_on_next_program = False
+                        self.ctl.record("fault", fault="no_answer", cause=f"program {name!r} arrived")
+                        self.answering.clear()
+                        continue
                     self.ctl.run_program(name, text)
         except (ConnectionError, asyncio.CancelledError):
             pass
@@ -321,7 +327,7 @@ class FakeURServer:
             fault, params = request[1], request[2]
             if fault not in SUPPORTED_FAULTS:
                 raise ValueError(f"fault {fault!r} not supported; choose from {sorted(SUPPORTED_FAULTS)}")
-            unknown = set(params) - ({"on_next_program"} if fault == "protective_stop" else set())
+            unknown = set(params) - ({"on_next_program"} if fault in ("protective_stop", "no_answer") else set())
             if unknown:
                 raise ValueError(f"fault {fault!r} takes no parameter {sorted(unknown)}")
             ctl.record("fault", fault=fault, **params)
@@ -329,6 +335,8 @@ class FakeURServer:
                 self.dropped = True
                 self.close_servers()
                 self.drop_clients()
+            elif fault == "no_answer" and params.get("on_next_program"):
+                self.no_answer_on_next_program = True
             elif fault == "no_answer":
                 self.answering.clear()
             elif fault == "protective_stop" and params.get("on_next_program"):
@@ -367,6 +375,7 @@ class FakeURServer:
         raise ValueError(f"unknown request {op!r}")
 
     async def _clear_network_faults(self) -> None:
+        self.no_answer_on_next_program = False
         self.answering.set()
         if self.dropped:
             self.dropped = False

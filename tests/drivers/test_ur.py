@@ -493,6 +493,37 @@ def test_protective_stop_during_the_path_upload_ends_the_path_at_once_and_reset_
 
 
 @pytest.mark.timeout(30)
+def test_a_controller_silent_from_the_path_upload_on_ends_stream_path_within_a_second(robot_and_fake):
+    robot, fake = robot_and_fake
+    X0 = robot.get_X_base_tool()
+    fake.inject("no_answer", on_next_program=True)
+    started = time.monotonic()
+    with pytest.raises(ConnectionLost, match=r"stood still .* during the path upload"):
+        robot.stream_path([offset(X0, dz=0.002 * i) for i in range(1, 6)], speed_m_s=0.1, timeout_s=10)
+    assert time.monotonic() - started < 1.0  # the stream's 0.5 s staleness, not the 5 s command timeout
+    fake.clear_faults()
+    robot.connect()  # as the acknowledgement does
+    robot.move_linear(offset(X0, dz=0.01), speed_m_s=0.2, timeout_s=5)
+    assert_pose_close(robot.get_X_base_tool(), offset(X0, dz=0.01))
+
+
+@pytest.mark.timeout(30)
+def test_connect_restores_the_speed_slider_a_lost_path_upload_left_at_zero(robot_and_fake):
+    import rtde_io
+
+    robot, fake = robot_and_fake
+    io = rtde_io.RTDEIOInterface(HOST)  # as a worker killed while its path upload held the arm
+    io.setSpeedSlider(0.0)
+    io.disconnect()
+    assert fake.snapshot()["speed_fraction"] == 0.0
+    robot.connect()
+    assert fake.snapshot()["speed_fraction"] == 1.0
+    X0 = robot.get_X_base_tool()
+    robot.move_linear(offset(X0, dz=0.01), speed_m_s=0.2, timeout_s=5)  # moves: not held at 0
+    assert_pose_close(robot.get_X_base_tool(), offset(X0, dz=0.01))
+
+
+@pytest.mark.timeout(30)
 def test_motion_timeout_stops_the_robot(robot_and_fake):
     robot, fake = robot_and_fake
     X0 = robot.get_X_base_tool()

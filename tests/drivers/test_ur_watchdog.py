@@ -160,7 +160,7 @@ def test_a_path_upload_holds_the_arm_until_the_arc_output_is_back_on(robot, fake
     i_off = next(i for i, e in enumerate(after) if e["kind"] == "digital_output" and e.get("cause"))
     i_start = next(i for i, e in enumerate(after) if e["kind"] == "path")
     i_on = next(i for i, k in enumerate(kinds) if k[:3] == ("digital_output", ARC, True) and i > i_off)
-    i_go = kinds.index(("speed_slider", None, None, 1.0))
+    i_go = next(i for i, k in enumerate(kinds) if k == ("speed_slider", None, None, 1.0) and i > i_hold)
     assert i_hold < i_start < i_on < i_go
     assert i_off < i_on
     armed = [e for e in events if e["kind"] == "set_watchdog"]
