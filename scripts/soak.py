@@ -12,7 +12,8 @@ journal names it):
 
 - most are dry runs (``?dry_run=1``: captured where the robot stands, planned and validated, nothing moves);
 - every --weld-every-th job welds, and so does the job after a fault that stopped the torch on the part (the
-  operator runs the part again; it also brings the robot home for the dry runs);
+  operator runs the part again; it also brings the robot home for the dry runs) or left the robot at the first
+  capture pose (a camera timeout);
 - every --fault-every-th job is a fault, in turn from --faults: ``camera_timeout`` (the camera stops sending
   frames before the job), ``connection_drop`` (the robot controller drops its connection before the job),
   ``protective_stop`` and ``track_fault`` (injected once the arc of a welding job is on), ``no_answer`` and

@@ -91,7 +91,9 @@ class PlannedJob:
 
 def plan_jobs(n_jobs: int, *, fault_every: int, weld_every: int, faults: tuple[str, ...]) -> list[PlannedJob]:
     """The soak's jobs: a fault every ``fault_every`` (in turn from ``faults``), a weld every ``weld_every`` and
-    after a fault that stopped the torch on the part, dry runs otherwise (0: never)."""
+    after a fault that left the robot away from its home pose (the torch stopped on the part, or the camera failed
+    at the first capture pose: dry runs capture where the robot stands, and the weld brings it home), dry runs
+    otherwise (0: never)."""
     unknown = [name for name in faults if name not in FAULTS]
     if unknown:
         raise ValueError(f"unknown fault kinds {unknown}; choose from {sorted(FAULTS)}")
@@ -103,7 +105,7 @@ def plan_jobs(n_jobs: int, *, fault_every: int, weld_every: int, faults: tuple[s
             f = FAULTS[faults[sum(seen.values()) % len(faults)]]
             plan.append(PlannedJob(i, f.name, f.weld, f, seen[f.name]))
             seen[f.name] += 1
-            rerun = f.when == "arc_on"
+            rerun = f.when == "arc_on" or f.name == "camera_timeout"
         elif rerun or (weld_every and i % weld_every == 0):
             plan.append(PlannedJob(i, "weld", True))
             rerun = False
