@@ -119,11 +119,13 @@ def start_simulators(config: CellConfig) -> Simulators:
         rc = config.robot
         arc = config.welding.arc_output if config.welding.arc_output is not None else 0
         if rc.kind == "fake-fanuc":
-            from sim_fakes.fake_fanuc import FakeFanucController, HeartbeatProgram
+            from sim_fakes.fake_fanuc_process import FakeFanucProcess
+            from sim_fakes.fanuc_program import HeartbeatProgram
 
-            # the fake runs the watchdog program an integrator installs (docs/controller-watchdogs.md)
+            # the fake runs the watchdog program an integrator installs (docs/controller-watchdogs.md), in a process
+            # of its own: the host's computing must not starve the simulated controller (as with the fake UR)
             program = HeartbeatProgram(rc.heartbeat_register, rc.heartbeat_timeout_s, (arc + 1,))
-            fanuc = FakeFanucController(host=rc.host, port=rc.rmi_port, heartbeat=program).start()
+            fanuc = FakeFanucProcess(host=rc.host, port=rc.rmi_port, heartbeat=program).start()
             sims._stops.append(fanuc.stop)
             sims.robot, sims.robot_address = fanuc, (rc.host, fanuc.port)
         elif rc.kind == "fake-ur":

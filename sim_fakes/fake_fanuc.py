@@ -220,7 +220,8 @@ class FakeFanucController(LoopThreadFake):
 
     def events(self) -> list[dict[str, Any]]:
         """Controller-side happenings with the fake's clock ``t`` (s): ``heartbeat_lost`` trips, digital output
-        writes (``dout``, with the ``cause`` for the watchdog's), faults injected."""
+        writes (``dout``: the host's with the tool position ``xyz_mm`` at that instant, the watchdog's with its
+        ``cause``), faults injected."""
         return self._call(lambda: list(self._events))
 
     def now_s(self) -> float:
@@ -536,7 +537,7 @@ class FakeFanucController(LoopThreadFake):
         if value not in ("ON", "OFF"):
             return {"ErrorID": int(ErrorID.INVALID_VALUE)}
         self._dout[port] = value == "ON"
-        self._event("dout", port=port, value=value == "ON")
+        self._event("dout", port=port, value=value == "ON", xyz_mm=[float(v) for v in self._p_mm])
         return {}
 
     def _cmd_read_io_port(self, msg: Packet) -> Packet:

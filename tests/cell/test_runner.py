@@ -283,19 +283,20 @@ def rig(request: pytest.FixtureRequest, robot: str) -> Rig:
 
 
 class DoutLog:
-    """Every digital output write the fake FANUC receives, with the tool position (mm) at that instant."""
+    """The digital output writes the fake FANUC accepts from the host from now on, with the tool position (mm) at
+    that instant (the fake's ``dout`` events; the watchdog's own switching, which has a ``cause``, left out)."""
 
     def __init__(self, fake: Any) -> None:
-        self.writes: list[tuple[int, bool, np.ndarray]] = []
-        original = fake._cmd_write_dout
+        self.fake = fake
+        self.n_events = len(fake.events())
 
-        def record(msg: dict[str, Any]) -> dict[str, Any]:
-            reply: dict[str, Any] = original(msg)
-            if "ErrorID" not in reply:
-                self.writes.append((int(msg["PortNumber"]), msg["PortValue"] == "ON", fake._p_mm.copy()))
-            return reply
-
-        fake._cmd_write_dout = record  # the fake looks its handlers up on each packet
+    @property
+    def writes(self) -> list[tuple[int, bool, np.ndarray]]:
+        return [
+            (int(e["port"]), bool(e["value"]), np.asarray(e["xyz_mm"]))
+            for e in self.fake.events()[self.n_events :]
+            if e["kind"] == "dout" and "cause" not in e
+        ]
 
 
 def state_changes(journal: Journal, job_id: int) -> list[str]:

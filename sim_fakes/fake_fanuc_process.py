@@ -1,0 +1,200 @@
+"""The fake FANUC controller in a process of its own, as the fake UR runs, behind a handle with the same methods.
+
+In the host's process the fake shares the host's GIL: a daemon or a test computing a detection or a calibration
+starves the fake's event loop, and the driver's real deadlines (a 0.4 s status read, the R[90] heartbeat watched
+by WC_HBEAT within 0.3 s) then trip on the simulator's lateness instead of the host's. :class:`FakeFanucProcess`
+runs :class:`sim_fakes.fake_fanuc.FakeFanucController` in a spawned child and forwards the control handle's calls
+(:data:`HANDLE_METHODS`) over a pipe, each with a deadline. The cell factory starts this one; driver tests that
+look inside the fake still construct :class:`~sim_fakes.fake_fanuc.FakeFanucController` in their own process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import signal
+import threading
+from multiprocessing.connection import Connection
+from types import TracebackType
+from typing import Any
+
+from sim_fakes.fake_fanuc import FakeFanucController
+from sim_fakes.fanuc_program import HeartbeatProgram, InstructionRecord
+
+HANDLE_METHODS = frozenset(
+    {
+        "inject",
+        "clear_faults",
+        "records",
+        "max_in_flight",
+        "xyzwpr_mm_deg",
+        "digital_output",
+        "in_flight",
+        "events",
+        "now_s",
+        "register",
+    }
+)
+"""The :class:`FakeFanucController` methods the handle forwards (what the cell's tests and fault switch use)."""
+
+
+def _serve(conn: Connection, host: str, port: int, heartbeat: HeartbeatProgram | None) -> None:
+    """The child: start the fake, report its port, answer calls until told to stop or the parent goes away."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the parent; its handle stops this process
+    try:
+        fake = FakeFanucController(host=host, port=port, heartbeat=heartbeat).start()
+    except Exception as err:
+        conn.send(("error", f"{type(err).__name__}: {err}"))
+        return
+    conn.send(("ready", fake.port))
+    try:
+        while True:
+            try:
+                name, args, kwargs = conn.recv()
+            except (EOFError, OSError):
+                return  # the parent is gone: nobody can use the fake any more
+            if name == "stop":
+                conn.send(("ok", None))
+                return
+            if name not in HANDLE_METHODS:
+                conn.send(("error", f"AttributeError: the fake FANUC's handle has no method {name!r}"))
+                continue
+            try:
+                conn.send(("ok", getattr(fake, name)(*args, **kwargs)))
+            except Exception as err:
+                conn.send(("error", f"{type(err).__name__}: {err}"))
+    finally:
+        fake.stop()
+
+
+class FakeFanucProcess:
+    """A :class:`FakeFanucController` (``host``, ``port``, ``heartbeat`` as there) in a child process.
+
+    Implements :class:`sim_fakes.faults.FaultInjectable`; :attr:`port` is the bound RMI port once started. Each
+    forwarded call waits at most ``request_timeout_s`` (TimeoutError); the fake's own ValueErrors come back as
+    ValueError. Use as a context manager or call :meth:`start` / :meth:`stop`.
+    """
+
+    supported_faults = FakeFanucController.supported_faults
+
+    def __init__(
+        self,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        heartbeat: HeartbeatProgram | None = None,
+        startup_timeout_s: float = 30.0,
+        request_timeout_s: float = 10.0,
+    ) -> None:
+        self.host = host
+        self._requested_port = port
+        self._heartbeat = heartbeat
+        self.startup_timeout_s = startup_timeout_s
+        self.request_timeout_s = request_timeout_s
+        self.port = 0
+        self._proc: multiprocessing.process.BaseProcess | None = None
+        self._conn: Connection | None = None
+        self._lock = threading.Lock()
+
+    def start(self) -> FakeFanucProcess:
+        if self._proc is not None:
+            raise RuntimeError(f"fake FANUC at {self.host} is already running")
+        ctx = multiprocessing.get_context("spawn")
+        parent, child = ctx.Pipe()
+        proc = ctx.Process(
+            target=_serve,
+            args=(child, self.host, self._requested_port, self._heartbeat),
+            name=f"fake-fanuc-{self.host}",
+            daemon=True,
+        )
+        proc.start()
+        child.close()
+        self._proc, self._conn = proc, parent
+        if not parent.poll(self.startup_timeout_s):
+            self.stop()
+            raise TimeoutError(f"fake FANUC at {self.host} did not start within {self.startup_timeout_s} s")
+        try:
+            status, detail = parent.recv()
+        except EOFError:
+            status, detail = "error", f"its process ended (exit code {proc.exitcode})"
+        if status != "ready":
+            self.stop()
+            raise RuntimeError(f"fake FANUC at {self.host} could not start: {detail}")
+        self.port = int(detail)
+        return self
+
+    def stop(self) -> None:
+        """Stop the fake and its process (safe to call twice)."""
+        proc, conn = self._proc, self._conn
+        self._proc = self._conn = None
+        if conn is not None:
+            with contextlib.suppress(OSError, EOFError):
+                conn.send(("stop", (), {}))
+                if conn.poll(5.0):
+                    conn.recv()
+            conn.close()
+        if proc is not None:
+            proc.join(5.0)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(2.0)
+
+    def __enter__(self) -> FakeFanucProcess:
+        return self.start()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop()
+
+    def _call(self, name: str, *args: Any, **kwargs: Any) -> Any:
+        if name not in HANDLE_METHODS:
+            raise AttributeError(f"the fake FANUC's handle has no method {name!r}")
+        with self._lock:
+            conn = self._conn
+            if conn is None:
+                raise RuntimeError(f"fake FANUC at {self.host} is not running; call start() first")
+            conn.send((name, args, kwargs))
+            if not conn.poll(self.request_timeout_s):
+                raise TimeoutError(
+                    f"fake FANUC at {self.host} did not answer {name!r} within {self.request_timeout_s} s"
+                )
+            status, result = conn.recv()
+        if status != "ok":
+            raise ValueError(result)
+        return result
+
+    # FaultInjectable
+    def inject(self, fault: str, **params: Any) -> None:
+        self._call("inject", fault, **params)
+
+    def clear_faults(self) -> None:
+        self._call("clear_faults")
+
+    # what the fake saw and is doing (see FakeFanucController)
+    def records(self) -> list[InstructionRecord]:
+        return list(self._call("records"))
+
+    def accepted_records(self) -> list[InstructionRecord]:
+        return [r for r in self.records() if r.error_id == 0]
+
+    def max_in_flight(self) -> int:
+        return int(self._call("max_in_flight"))
+
+    def xyzwpr_mm_deg(self) -> tuple[float, ...]:
+        return tuple(self._call("xyzwpr_mm_deg"))
+
+    def digital_output(self, port_number: int) -> bool:
+        return bool(self._call("digital_output", port_number))
+
+    def in_flight(self) -> int:
+        return int(self._call("in_flight"))
+
+    def events(self) -> list[dict[str, Any]]:
+        return list(self._call("events"))
+
+    def now_s(self) -> float:
+        return float(self._call("now_s"))
+
+    def register(self, number: int) -> float:
+        return float(self._call("register", number))
