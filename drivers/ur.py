@@ -105,6 +105,7 @@ _RECOVERABLE_MODES = frozenset(
 )
 
 _UNLOCK_RETRY_S = 0.25
+_UPLOAD_STALE_S = 0.25  # a controller whose RTDE stream stands still this long during a path upload is gone
 
 
 class URRTDEError(Exception):
@@ -393,9 +394,15 @@ class URRobot:
             blend_m,
         )
         budget = self._budget(deadline)
-        # the worker gives up waiting for the path's script to start a little before this driver gives up on it
+        # the worker gives up waiting for the path's script to start a little before this driver gives up on it,
+        # and on a silent controller sooner than state() does: no status can be read meanwhile, and the fault that
+        # follows still attempts the stop and the arc-off (up to 0.5 s) before the cell is in fault (1 s at most)
         accepted = self._request(
-            "move_path", path, max(budget - 1.0, 0.5 * budget), self.stale_after_s, timeout_s=budget
+            "move_path",
+            path,
+            max(budget - 1.0, 0.5 * budget),
+            min(self.stale_after_s, _UPLOAD_STALE_S),
+            timeout_s=budget,
         )
         if not accepted:
             self._raise_refused("moveL path", targets[-1])
