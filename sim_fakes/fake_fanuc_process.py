@@ -10,16 +10,13 @@ look inside the fake still construct :class:`~sim_fakes.fake_fanuc.FakeFanucCont
 
 from __future__ import annotations
 
-import contextlib
-import multiprocessing
 import signal
-import threading
 from multiprocessing.connection import Connection
-from types import TracebackType
 from typing import Any
 
 from sim_fakes.fake_fanuc import FakeFanucController
 from sim_fakes.fanuc_program import HeartbeatProgram, InstructionRecord
+from sim_fakes.process_fake import ProcessFake
 
 HANDLE_METHODS = frozenset(
     {
@@ -39,7 +36,8 @@ HANDLE_METHODS = frozenset(
 
 
 def _serve(conn: Connection, host: str, port: int, heartbeat: HeartbeatProgram | None) -> None:
-    """The child: start the fake, report its port, answer calls until told to stop or the parent goes away."""
+    """The child: start the fake, report its port, answer ``(method, args, kwargs)`` until ``("shutdown",)`` or
+    until the parent goes away."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the parent; its handle stops this process
     try:
         fake = FakeFanucController(host=host, port=port, heartbeat=heartbeat).start()
@@ -50,14 +48,15 @@ def _serve(conn: Connection, host: str, port: int, heartbeat: HeartbeatProgram |
     try:
         while True:
             try:
-                name, args, kwargs = conn.recv()
+                request = conn.recv()
             except (EOFError, OSError):
                 return  # the parent is gone: nobody can use the fake any more
-            if name == "stop":
+            if request[0] == "shutdown":
                 conn.send(("ok", None))
                 return
+            name, args, kwargs = request
             if name not in HANDLE_METHODS:
-                conn.send(("error", f"AttributeError: the fake FANUC's handle has no method {name!r}"))
+                conn.send(("error", f"the fake FANUC's handle has no method {name!r}"))
                 continue
             try:
                 conn.send(("ok", getattr(fake, name)(*args, **kwargs)))
@@ -67,11 +66,11 @@ def _serve(conn: Connection, host: str, port: int, heartbeat: HeartbeatProgram |
         fake.stop()
 
 
-class FakeFanucProcess:
+class FakeFanucProcess(ProcessFake):
     """A :class:`FakeFanucController` (``host``, ``port``, ``heartbeat`` as there) in a child process.
 
     Implements :class:`sim_fakes.faults.FaultInjectable`; :attr:`port` is the bound RMI port once started. Each
-    forwarded call waits at most ``request_timeout_s`` (TimeoutError); the fake's own ValueErrors come back as
+    forwarded call waits at most ``request_timeout_s`` (TimeoutError); the fake's own errors come back as
     ValueError. Use as a context manager or call :meth:`start` / :meth:`stop`.
     """
 
@@ -87,82 +86,22 @@ class FakeFanucProcess:
         request_timeout_s: float = 10.0,
     ) -> None:
         self.host = host
-        self._requested_port = port
-        self._heartbeat = heartbeat
-        self.startup_timeout_s = startup_timeout_s
-        self.request_timeout_s = request_timeout_s
         self.port = 0
-        self._proc: multiprocessing.process.BaseProcess | None = None
-        self._conn: Connection | None = None
-        self._lock = threading.Lock()
-
-    def start(self) -> FakeFanucProcess:
-        if self._proc is not None:
-            raise RuntimeError(f"fake FANUC at {self.host} is already running")
-        ctx = multiprocessing.get_context("spawn")
-        parent, child = ctx.Pipe()
-        proc = ctx.Process(
-            target=_serve,
-            args=(child, self.host, self._requested_port, self._heartbeat),
-            name=f"fake-fanuc-{self.host}",
-            daemon=True,
+        super().__init__(
+            _serve,
+            (host, port, heartbeat),
+            label=f"fake FANUC at {host}",
+            startup_timeout_s=startup_timeout_s,
+            request_timeout_s=request_timeout_s,
         )
-        proc.start()
-        child.close()
-        self._proc, self._conn = proc, parent
-        if not parent.poll(self.startup_timeout_s):
-            self.stop()
-            raise TimeoutError(f"fake FANUC at {self.host} did not start within {self.startup_timeout_s} s")
-        try:
-            status, detail = parent.recv()
-        except EOFError:
-            status, detail = "error", f"its process ended (exit code {proc.exitcode})"
-        if status != "ready":
-            self.stop()
-            raise RuntimeError(f"fake FANUC at {self.host} could not start: {detail}")
+
+    def _on_ready(self, detail: Any) -> None:
         self.port = int(detail)
-        return self
-
-    def stop(self) -> None:
-        """Stop the fake and its process (safe to call twice)."""
-        proc, conn = self._proc, self._conn
-        self._proc = self._conn = None
-        if conn is not None:
-            with contextlib.suppress(OSError, EOFError):
-                conn.send(("stop", (), {}))
-                if conn.poll(5.0):
-                    conn.recv()
-            conn.close()
-        if proc is not None:
-            proc.join(5.0)
-            if proc.is_alive():
-                proc.kill()
-                proc.join(2.0)
-
-    def __enter__(self) -> FakeFanucProcess:
-        return self.start()
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.stop()
 
     def _call(self, name: str, *args: Any, **kwargs: Any) -> Any:
         if name not in HANDLE_METHODS:
             raise AttributeError(f"the fake FANUC's handle has no method {name!r}")
-        with self._lock:
-            conn = self._conn
-            if conn is None:
-                raise RuntimeError(f"fake FANUC at {self.host} is not running; call start() first")
-            conn.send((name, args, kwargs))
-            if not conn.poll(self.request_timeout_s):
-                raise TimeoutError(
-                    f"fake FANUC at {self.host} did not answer {name!r} within {self.request_timeout_s} s"
-                )
-            status, result = conn.recv()
-        if status != "ok":
-            raise ValueError(result)
-        return result
+        return self._request(name, args, kwargs)
 
     # FaultInjectable
     def inject(self, fault: str, **params: Any) -> None:

@@ -5,13 +5,8 @@ Part of :mod:`sim_fakes.fake_ur` (its docstring describes the fake as a whole).
 
 from __future__ import annotations
 
-import contextlib
 import ipaddress
-import multiprocessing
-import threading
 from collections.abc import Sequence
-from multiprocessing.connection import Connection
-from types import TracebackType
 from typing import Any
 
 import numpy as np
@@ -20,11 +15,12 @@ from numpy.typing import NDArray
 from sim_fakes.fake_ur.controller import FakeURConfig
 from sim_fakes.fake_ur.kinematics import Q_HOME, SUPPORTED_FAULTS, Arm, pose_to_X
 from sim_fakes.fake_ur.server import _serve
+from sim_fakes.process_fake import ProcessFake
 
 FloatArray = NDArray[np.float64]
 
 
-class FakeURController:
+class FakeURController(ProcessFake):
     """Control handle of a fake UR controller process (implements :class:`sim_fakes.faults.FaultInjectable`).
 
     ``host``: a loopback address (``127.0.0.N``); the fake listens on the standard UR ports there.
@@ -75,76 +71,17 @@ class FakeURController:
         )
         if any(not 0 <= i < 8 for i in self.cfg.program_stop_outputs_low):
             raise ValueError(f"program_stop_outputs_low: standard outputs are 0-7, got {program_stop_outputs_low}")
-        self.startup_timeout_s = startup_timeout_s
-        self.request_timeout_s = request_timeout_s
-        self._proc: multiprocessing.process.BaseProcess | None = None
-        self._conn: Connection | None = None
-        self._lock = threading.Lock()
+        super().__init__(
+            _serve,
+            (self.cfg,),
+            label=f"fake UR at {host}",
+            startup_timeout_s=startup_timeout_s,
+            request_timeout_s=request_timeout_s,
+        )
 
     @property
     def host(self) -> str:
         return self.cfg.host
-
-    def start(self) -> FakeURController:
-        if self._proc is not None:
-            raise RuntimeError(f"fake UR at {self.host} is already running")
-        ctx = multiprocessing.get_context("spawn")
-        parent, child = ctx.Pipe()
-        proc = ctx.Process(target=_serve, args=(child, self.cfg), name=f"fake-ur-{self.host}", daemon=True)
-        proc.start()
-        child.close()
-        self._proc, self._conn = proc, parent
-        if not parent.poll(self.startup_timeout_s):
-            self.stop()
-            raise TimeoutError(f"fake UR at {self.host} did not start within {self.startup_timeout_s} s")
-        try:
-            status, detail = parent.recv()
-        except EOFError:
-            status, detail = "error", f"its process ended (exit code {proc.exitcode})"
-        if status != "ready":
-            self.stop()
-            raise RuntimeError(f"fake UR at {self.host} could not start: {detail}")
-        return self
-
-    def stop(self) -> None:
-        """Stop the fake's process (safe to call twice)."""
-        proc, conn = self._proc, self._conn
-        self._proc = self._conn = None
-        if conn is not None:
-            with contextlib.suppress(OSError, EOFError):
-                conn.send(("shutdown",))
-                if conn.poll(2.0):
-                    conn.recv()
-            conn.close()
-        if proc is not None:
-            proc.join(3.0)
-            if proc.is_alive():
-                proc.terminate()
-                proc.join(2.0)
-            if proc.is_alive():
-                proc.kill()
-                proc.join(2.0)
-
-    def __enter__(self) -> FakeURController:
-        return self.start()
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.stop()
-
-    def _request(self, *request: Any) -> Any:
-        with self._lock:
-            conn = self._conn
-            if conn is None:
-                raise RuntimeError(f"fake UR at {self.host} is not running; call start() first")
-            conn.send(request)
-            if not conn.poll(self.request_timeout_s):
-                raise TimeoutError(f"fake UR at {self.host} did not answer {request[0]!r}")
-            status, result = conn.recv()
-        if status != "ok":
-            raise ValueError(result)
-        return result
 
     # FaultInjectable
     def inject(self, fault: str, **params: Any) -> None:
