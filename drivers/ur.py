@@ -105,7 +105,6 @@ _RECOVERABLE_MODES = frozenset(
 )
 
 _UNLOCK_RETRY_S = 0.25
-_UPLOAD_STALE_S = 0.25  # a controller whose RTDE stream stands still this long during a path upload is gone
 
 
 class URRTDEError(Exception):
@@ -286,9 +285,11 @@ class URRobot:
         if raw["timestamp"] != self._last_timestamp:
             self._last_timestamp = raw["timestamp"]
             self._last_change = now
-        elif now - self._last_change > self.stale_after_s:
+        # as this process sees it, or as the worker does (it reads the stream during a path upload too)
+        stood_s = max(now - self._last_change, float(raw["stamp_age_s"]))
+        if stood_s > self.stale_after_s:
             raise ConnectionLost(
-                f"{self.name}: the RTDE data from {self.host} stopped {now - self._last_change:.2f} s ago "
+                f"{self.name}: the RTDE data from {self.host} stopped {stood_s:.2f} s ago "
                 f"(controller timestamp {raw['timestamp']:.3f} s); the controller does not answer, "
                 "check it and call connect() again"
             )
@@ -395,14 +396,9 @@ class URRobot:
         )
         budget = self._budget(deadline)
         # the worker gives up waiting for the path's script to start a little before this driver gives up on it,
-        # and on a silent controller sooner than state() does: no status can be read meanwhile, and the fault that
-        # follows still attempts the stop and the arc-off (up to 0.5 s) before the cell is in fault (1 s at most)
+        # and on a controller whose data stands still as soon as state() would
         accepted = self._request(
-            "move_path",
-            path,
-            max(budget - 1.0, 0.5 * budget),
-            min(self.stale_after_s, _UPLOAD_STALE_S),
-            timeout_s=budget,
+            "move_path", path, max(budget - 1.0, 0.5 * budget), self.stale_after_s, timeout_s=budget
         )
         if not accepted:
             self._raise_refused("moveL path", targets[-1])
@@ -426,6 +422,9 @@ class URRobot:
         if not 0 <= index <= 7:
             raise ValueError(f"{self.name}: standard digital outputs are 0-7, got {index}")
         log.debug("%s: set standard digital output %d to %s", self.name, index, value)
+        # a controller whose data stands still does not answer the write either (ur-rtde's IO interface then waits):
+        # say so at once, so that an arc-off after a lost controller does not hold the fault up
+        self._status()
         if not self._request("set_digital_output", index, bool(value), timeout_s=self.command_timeout_s):
             raise ConnectionLost(f"{self.name}: ur-rtde could not send digital output {index} to {self.host}")
         deadline = time.monotonic() + timeout_s

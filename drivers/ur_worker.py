@@ -82,6 +82,8 @@ class Worker:
         self.io: Any = None
         self.lock = threading.Lock()
         self.control_lost = ""  # why the control interface was given up ('' while it is in use)
+        self._stamp: float | None = None  # the controller's last RTDE timestamp seen here, and when it last changed
+        self._stamp_changed = time.monotonic()
         self._heartbeat: threading.Thread | None = None
 
     def op_connect(self) -> dict[str, Any]:
@@ -122,6 +124,14 @@ class Worker:
             return "emergency"
         return "protective" if bits & PROTECTIVE_MASK else ""
 
+    def _stamp_age_s(self, stamp: float | None) -> float:
+        """How long the controller's RTDE timestamp has stood still, as seen in this process (``stamp`` None: the
+        stream closed)."""
+        now = time.monotonic()
+        if stamp is not None and stamp != self._stamp:
+            self._stamp, self._stamp_changed = stamp, now
+        return now - self._stamp_changed
+
     def abandon_control(self, reason: str) -> None:
         """Give up the control interface (a call into it is stuck): every later control request fails, the state
         comes from the receive interface alone, and the interface is disconnected in a thread of its own (ur-rtde
@@ -149,8 +159,10 @@ class Worker:
             raise ConnectionLost("the RTDE receive connection closed")
         lost = self.control_lost
         status = None if lost else c.getAsyncOperationProgressEx()
+        stamp = r.getTimestamp()
         return {
-            "timestamp": r.getTimestamp(),
+            "timestamp": stamp,
+            "stamp_age_s": self._stamp_age_s(stamp),
             "pose": list(r.getActualTCPPose()),
             "speed": list(r.getActualTCPSpeed()),
             "robot_mode": r.getRobotMode(),
@@ -214,9 +226,7 @@ class Worker:
             target=lambda: result.append(bool(control.moveL(path, True))), name="ur-path-upload", daemon=True
         )
         upload.start()
-        now = time.monotonic()
-        deadline = now + timeout_s
-        last_stamp, last_change = receive.getTimestamp(), now
+        deadline = time.monotonic() + timeout_s
         while True:
             upload.join(_UPLOAD_POLL_S)
             if not upload.is_alive():
@@ -225,10 +235,9 @@ class Worker:
                 return result[0]
             now = time.monotonic()
             stamp = receive.getTimestamp() if receive.isConnected() else None
-            if stamp != last_stamp:
-                last_stamp, last_change = stamp, now
-            if stamp is None or now - last_change > stale_after_s:
-                lost = "closed" if stamp is None else f"stood still for {now - last_change:.2f} s"
+            age_s = self._stamp_age_s(stamp)
+            if stamp is None or age_s > stale_after_s:
+                lost = "closed" if stamp is None else f"stood still for {age_s:.2f} s"
                 self.abandon_control(f"the RTDE stream {lost} during the path upload")
                 raise ConnectionLost(f"the controller's RTDE stream {lost} during the path upload")
             stop = self._safety_stop()
