@@ -13,6 +13,7 @@ import os
 import signal
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from types import ModuleType
@@ -202,36 +203,56 @@ class Worker:
                 if time.monotonic() > deadline:
                     raise ConnectionLost("the speed slider did not read back 0 before the path upload")
                 time.sleep(0.004)
-            accepted = self._upload_path(path, upload_timeout_s, stale_after_s)
-            if accepted:
-                self._arm_watchdog()
-                time.sleep(0.02)  # two controller cycles: the receive stream shows what the program stop did
-                dropped = bits_before & ~int(self.receive.getActualDigitalOutputBits())
-                for index in range(8):
-                    if dropped >> index & 1:
-                        self.io.setStandardDigitalOut(index, True)
-                deadline = time.monotonic() + 1.0
-                while dropped & ~int(self.receive.getActualDigitalOutputBits()):
-                    if time.monotonic() > deadline:
-                        raise ConnectionLost(f"outputs {dropped:#x} did not read back on after the path upload")
-                    time.sleep(0.004)
+            accepted = self._watched(
+                lambda: self._upload_and_restore(path, bits_before), upload_timeout_s, stale_after_s
+            )
         finally:
             self.io.setSpeedSlider(1.0)
         return accepted
 
-    def _upload_path(self, path: list[list[float]], timeout_s: float, stale_after_s: float) -> bool:
-        control, receive = self.control, self.receive
+    def _upload_and_restore(self, path: list[list[float]], bits_before: int) -> bool:
+        """The path's upload, its watchdog armed and kicked (the heartbeat thread waits for this request), and the
+        outputs the program stop switched off back on (read back)."""
+        control = self.control
+        if not control.moveL(path, True):
+            return False
+        self._arm_watchdog()
+        kicked = time.monotonic()
+        time.sleep(0.02)  # two controller cycles: the receive stream shows what the program stop did
+        dropped = bits_before & ~int(self.receive.getActualDigitalOutputBits())
+        for index in range(8):
+            if dropped >> index & 1:
+                self.io.setStandardDigitalOut(index, True)
+        deadline = time.monotonic() + 1.0
+        while dropped & ~int(self.receive.getActualDigitalOutputBits()):
+            if time.monotonic() > deadline:
+                raise ConnectionLost(f"outputs {dropped:#x} did not read back on after the path upload")
+            if self.heartbeat_timeout_s is not None and time.monotonic() - kicked > self.heartbeat_timeout_s / 6.0:
+                control.kickWatchdog()
+                kicked = time.monotonic()
+            time.sleep(0.004)
+        return True
+
+    def _watched(self, work: Callable[[], bool], timeout_s: float, stale_after_s: float) -> bool:
+        """Run ``work`` (ur-rtde calls that wait on the controller) in a thread and watch the receive stream."""
+        receive = self.receive
         result: list[bool] = []
-        upload = threading.Thread(
-            target=lambda: result.append(bool(control.moveL(path, True))), name="ur-path-upload", daemon=True
-        )
+        errors: list[BaseException] = []
+
+        def run() -> None:
+            try:
+                result.append(work())
+            except BaseException as err:  # handed to the request's answer below
+                errors.append(err)
+
+        upload = threading.Thread(target=run, name="ur-path-upload", daemon=True)
         upload.start()
         deadline = time.monotonic() + timeout_s
         while True:
             upload.join(_UPLOAD_POLL_S)
             if not upload.is_alive():
-                if not result:
-                    raise ConnectionLost("ur-rtde's moveL(path) raised; see the worker's output")
+                if errors:
+                    raise errors[0]
                 return result[0]
             now = time.monotonic()
             stamp = receive.getTimestamp() if receive.isConnected() else None
