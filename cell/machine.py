@@ -167,6 +167,8 @@ class CellMachine:
         self._aborted = False
         self._interrupt: tuple[str, str] | None = None  # ("pause" | "fault", reason)
         self._interrupt_lock = threading.Lock()
+        self._stopped = threading.Event()  # clear while fault_now/pause_now is attempting the stop and arc-off
+        self._stopped.set()
         self._model = _Model()
         self._machine = Machine(
             model=self._model,
@@ -271,13 +273,17 @@ class CellMachine:
         self._interrupt_now("fault", reason)
 
     def _interrupt_now(self, kind: str, reason: str) -> None:
+        self._stopped.clear()
         with self._interrupt_lock:
             if self._interrupt is None or kind == "fault":  # a fault outranks a pause
                 self._interrupt = (kind, reason)
-        problems = _stop_everything(self.actions)
-        if problems:
-            with self._interrupt_lock:  # a pause that could not stop is a fault
-                self._interrupt = ("fault", f"{reason}; stopping failed: {'; '.join(problems)}")
+        try:
+            problems = _stop_everything(self.actions)
+            if problems:
+                with self._interrupt_lock:  # a pause that could not stop is a fault
+                    self._interrupt = ("fault", f"{reason}; stopping failed: {'; '.join(problems)}")
+        finally:
+            self._stopped.set()
         with self.lock:  # waits for a running activity, which the stop above makes return
             self._apply_interrupt()
 
@@ -427,6 +433,14 @@ class CellMachine:
         else:
             with self._interrupt_lock:
                 pending, self._interrupt = self._interrupt, None
+            if pending is not None:
+                # the interrupt's own stop attempt may still be under way: its outcome (a stop or arc-off that
+                # failed) belongs in the reason, so wait for it (it gives up within STOP_ATTEMPT_S)
+                self._stopped.wait(STOP_ATTEMPT_S + 0.5)
+                with self._interrupt_lock:
+                    later, self._interrupt = self._interrupt, None
+                if later is not None and (later[0] == "fault" or pending[0] == "pause"):
+                    pending = later
             if (
                 pending is not None
                 and pending[0] == "pause"

@@ -22,12 +22,10 @@ from numpy.typing import NDArray
 
 from perception.fine.groups import Groups
 from perception.fine.noise import LocalPlanes
+from perception.fine.parallel import split_parallel
 from perception.fine.types import NoiseModel, Surface, SurfaceSet
 
 FloatArray = NDArray[np.float64]
-
-
-SPLIT_RMS_SHARE = 0.7  # see _split_parallel
 
 
 @dataclass(frozen=True)
@@ -355,63 +353,8 @@ def segment_surfaces(
             surfaces.append(Surface(lab, "plane", nrm, d, rms, len(sub), q[sub].mean(axis=0), zc))
             labels.reshape(-1)[idx[sub]] = lab
     labels, surfaces = _complete(p, labels, surfaces, planes.normal, sigma, noise, sp)
-    labels, surfaces = _split_parallel(p, labels, surfaces, planes.normal, noise, sp)
+    labels, surfaces = split_parallel(p, labels, surfaces, planes.normal, noise, min_pixels=sp.min_pixels)
     return SurfaceSet(labels, factor, tuple(surfaces))
-
-
-def _split_parallel(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], normals: FloatArray,
-                    noise: NoiseModel, sp: SurfaceParams) -> tuple[NDArray[np.int32], list[Surface]]:  # fmt: skip
-    """Planes that are two parallel planes a plate apart (a thin plate lying on another, its edge face too
-    narrow to break the growth between their tops) split in two. The common normal starts as the median
-    of the pixels' local normals (one plane through both tops tilts; the tops' own normals do not), then
-    the model is fitted alternately: the points split at the middle between the two groups' offsets along
-    the normal, the normal from the two groups' pooled scatter. It is kept when each group fits within the
-    noise (rms at most :data:`SPLIT_RMS_SHARE` of the one plane's), the groups lie at least six sigma apart
-    and each holds a tenth of the points: one plane's Gaussian noise split so lies about 1.6 sigma apart."""
-    flat = labels.reshape(-1)
-    pts = p.reshape(-1, 3)
-    out = list(surfaces)
-    for S in surfaces:
-        sig = float(noise.sigma_m(S.z_m))
-        # two planes six sigma apart, the smaller holding a tenth, fitted as one leave an rms of at least
-        # 6 sigma * sqrt(0.1 * 0.9) = 1.8 sigma: a plane that fits better is one plane
-        if S.kind != "plane" or S.n_points < 4 * sp.min_pixels or S.rms_m < 1.8 * sig:
-            continue
-        idx = np.flatnonzero(flat == S.label)
-        q = pts[idx]
-        local = normals.reshape(-1, 3)[idx]
-        local = local[np.all(np.isfinite(local), axis=1)]
-        if len(local) < sp.min_pixels:
-            continue
-        n = np.median(np.where((local @ S.normal)[:, None] < 0, -local, local), axis=0)
-        n /= max(float(np.linalg.norm(n)), 1e-12)
-        part = q @ n > np.median(q @ n)
-        for _ in range(30):
-            if part.sum() < sp.min_pixels or (~part).sum() < sp.min_pixels:
-                break
-            c0, c1 = q[~part].mean(axis=0), q[part].mean(axis=0)
-            d = np.where(part[:, None], q - c1, q - c0)
-            _w, v = np.linalg.eigh(d.T @ d)
-            n = v[:, 0] if v[:, 0] @ S.normal > 0 else -v[:, 0]
-            h = q @ n
-            new_part = h > 0.5 * (float(c0 @ n) + float(c1 @ n))
-            if np.array_equal(new_part, part):
-                break
-            part = new_part
-        if min(part.sum(), (~part).sum()) < max(sp.min_pixels, 0.1 * len(q)):
-            continue
-        h = q @ n
-        o0, o1 = -float(np.mean(h[~part])), -float(np.mean(h[part]))
-        rms0, rms1 = float(np.std(h[~part])), float(np.std(h[part]))
-        if abs(o1 - o0) < 6.0 * sig or max(rms0, rms1) > SPLIT_RMS_SHARE * S.rms_m:
-            continue
-        lab = len(out)
-        out[S.label] = replace(S, normal=n, offset=o0, rms_m=rms0, n_points=int((~part).sum()),
-                               centroid=q[~part].mean(axis=0), z_m=float(np.median(q[~part][:, 2])))  # fmt: skip
-        out.append(Surface(lab, "plane", n, o1, rms1, int(part.sum()), q[part].mean(axis=0),
-                           float(np.median(q[part][:, 2]))))  # fmt: skip
-        flat[idx[part]] = lab
-    return labels, out
 
 
 def _complete(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], normals: FloatArray,

@@ -1,0 +1,41 @@
+"""Two parallel tops a plate apart, grown into one surface, split in two; one noisy plane left whole."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+def _one_surface_of(p: np.ndarray) -> tuple[np.ndarray, list]:
+    from perception.fine.surfaces import _fit_plane
+    from perception.fine.types import Surface
+
+    q = p.reshape(-1, 3)
+    n, o, rms = _fit_plane(q)
+    return np.zeros(p.shape[:2], np.int32), [Surface(0, "plane", n, o, rms, len(q), q.mean(axis=0), 0.8)]
+
+
+def test_two_parallel_tops_a_plate_apart_are_split_and_one_noisy_plane_is_not() -> None:
+    """A 5 mm plate lying on another, both tops grown into one surface (sigma 0.3 mm at 0.8 m): split into
+    the two tops, 5 mm apart; one plane with the same noise stays one."""
+    from perception.fine.parallel import split_parallel
+    from perception.fine.surfaces import SurfaceParams
+    from perception.fine.types import NoiseModel
+
+    rng = np.random.default_rng(3)
+    u, v = np.meshgrid(np.linspace(-0.1, 0.1, 120), np.linspace(-0.06, 0.06, 80))
+    step = np.where(u > 0.02, 0.005, 0.0)  # the upper plate's top, nearer the camera
+    sigma = 0.0003
+    noise = NoiseModel(sigma_1m_m=sigma / 0.64, floor_m=1e-5, pixel_angle_rad=0.0012)
+    for h, parts in ((step, 2), (np.zeros_like(u), 1)):
+        z = 0.8 - h + rng.normal(0.0, sigma, u.shape)
+        p = np.stack([u, v, z], axis=-1)
+        labels, surfaces = _one_surface_of(p)
+        normals = np.broadcast_to(np.array([0.0, 0.0, -1.0]), p.shape) + rng.normal(0.0, 0.01, p.shape)
+        labels, out = split_parallel(p, labels, surfaces, normals, noise, min_pixels=SurfaceParams().min_pixels)
+        assert len(out) == parts
+        if parts == 2:
+            lower, upper = sorted(out, key=lambda s: s.centroid[2], reverse=True)
+            assert abs(float(upper.centroid @ lower.normal + lower.offset)) == pytest.approx(0.005, abs=2e-4)
+            assert max(s.rms_m for s in out) < 1.2 * sigma
+            assert np.count_nonzero(labels == upper.label) == np.count_nonzero(u > 0.02)
