@@ -333,6 +333,8 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
     if len(cloud.points) < 50:
         raise PerceptionError(f"{cloud.source}: only {len(cloud.points)} points")
     spacing = surface_spacing(cloud.points)
+    if p.method == "surfaces":  # its own viewpoint rule and range image: no voxel, no viewpoint guess here
+        return _detect_cloud_surfaces(cloud, p, spacing)
     if auto_voxel and AUTO_VOXEL_FACTOR * spacing > p.voxel_m:
         p = replace(p, voxel_m=min(AUTO_VOXEL_FACTOR * spacing, MAX_AUTO_VOXEL_M))
     log = StepLog()
@@ -342,8 +344,6 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
     # the viewpoint: clouds in a robot or world frame are not seen from their origin; use a point
     # above the cloud's centroid along the axis of least spread, on the side of most normals
     viewpoint = _guess_viewpoint(cloud.points, cloud.normals)
-    if p.method == "surfaces":
-        return _detect_cloud_surfaces(cloud, p, spacing)
     if p.z_range_m == DetectParams().z_range_m:
         # the default working range is for camera-frame depth; a cloud may be in a robot frame
         p = replace(p, z_range_m=(-np.inf, np.inf))

@@ -221,8 +221,8 @@ def _root_edges(q: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray,
     up -= (up @ u) * u
     up /= max(float(np.linalg.norm(up)), 1e-12)
     levels = []
-    for S, v in ((a, va), (b, vb)):
-        res = q @ S.normal + S.offset
+    res_a, res_b = q @ a.normal + a.offset, q @ b.normal + b.offset
+    for S, v, res in ((a, va, res_a), (b, vb, res_b)):
         with np.errstate(divide="ignore", invalid="ignore"):
             s_on = ((-S.offset / (rays @ S.normal))[:, None] * rays - line0) @ v
         keep = np.isfinite(s_on) & (s_on >= 0.0) & (s_on < max_reach_m) & (t >= t0) & (t <= t1)
@@ -239,7 +239,6 @@ def _root_edges(q: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray,
             continue
         levels.append(reach * float(v @ up))
     # a flat bottom seen inside the groove (the table through a gap with no root face): the root is no lower
-    res_a, res_b = q @ a.normal + a.offset, q @ b.normal + b.offset
     h = rel @ up
     bottom = (res_a > 3.0 * sig) & (res_b > 3.0 * sig) & (h < 0.5 * max_reach_m) & (t >= t0) & (t <= t1)
     k = np.floor((t[bottom] - t0) / step).astype(int)
