@@ -141,7 +141,6 @@ KNOWN_LONG: frozenset[str] = frozenset(
     {
         # issue 15, left to their owners this session: split them, or give the reason with "# long:" at the def
         "cell/zoo_bench.py:score_capture",  # the lead's zoo scoring
-        "perception/fine/gaps.py:inner_gap_seams",  # the lead's surfaces pipeline
         "sim_fakes/fake_ur/controller.py:Controller.dashboard",  # hw2's fake UR: its reason sits in its body
     }
 )

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from perception.capture import CameraIntrinsics
 from perception.fine.folds import contact_points
 from perception.fine.runs import covered_runs
-from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, SurfaceSet
+from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
 
 
 @dataclass(frozen=True)
@@ -127,30 +127,17 @@ def inner_gap_seams(
     """Butt gaps too narrow to split a plate at the work resolution: inside one plane's outline, at full
     resolution, a long thin line of pixels with no depth or depth behind the plane, with the plane on both
     sides of it all along."""
-    import cv2
-
     gp = params or InnerGapParams()
-    f = surfaces.factor
     H, W = full.shape[:2]
     out: list[SeamCurve] = []
     rays = None
     for s in surfaces.surfaces:
         if s.kind != "plane" or s.label in support:
             continue
-        small = (surfaces.labels == s.label).astype(np.uint8)
-        ys, xs = np.nonzero(small)
-        if len(ys) < 50:
+        window = _plane_window(surfaces, s.label, (H, W), gp)
+        if window is None:
             continue
-        y0, y1 = max(ys.min() * f - f, 0), min((ys.max() + 1) * f + f, H)
-        x0, x1 = max(xs.min() * f - f, 0), min((xs.max() + 1) * f + f, W)
-        mask = cv2.resize(small[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1], None, fx=f, fy=f,
-                          interpolation=cv2.INTER_NEAREST)  # fmt: skip
-        region = np.zeros((y1 - y0, x1 - x0), np.uint8)
-        oy, ox = ys.min() * f - y0, xs.min() * f - x0
-        region[oy : oy + mask.shape[0], ox : ox + mask.shape[1]] = mask[: y1 - y0 - oy, : x1 - x0 - ox]
-        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (gp.close_px, gp.close_px))
-        filled = cv2.morphologyEx(region, cv2.MORPH_CLOSE, k).astype(bool)
-        inner = cv2.erode(filled.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        (y0, y1, x0, x1), filled, inner = window
         pts = full[y0:y1, x0:x1].astype(np.float64)
         z = pts[..., 2]
         res = np.einsum("ijk,k->ij", np.nan_to_num(pts), s.normal) + s.offset
@@ -166,64 +153,97 @@ def inner_gap_seams(
         r = rays[hy + y0, hx + x0]
         g_all = r * (-s.offset / (r @ s.normal))[:, None]  # the hole pixels' rays met with the plate's plane
         for g, u in _gap_lines(g_all, s.normal, gp, rng=np.random.default_rng(0)):
-            c3 = g.mean(axis=0)
-            w = np.linalg.eigvalsh(np.cov((g - c3).T))
-            u = u - (u @ s.normal) * s.normal
-            u /= np.linalg.norm(u)
-            across = np.cross(s.normal, u)
-            # the plate on both sides: on-plane points within side_m of the gap line
-            pp = pts[on_plane]
-            d = pp - c3
-            a_off, t_along = d @ across, d @ u
-            gap_half = 2.0 * float(np.sqrt(max(w[1], 0.0))) + 0.5 * float(noise_full.spacing_m(s.z_m))
-            tg = (g - c3) @ u
-            lo, hi = float(tg.min()), float(tg.max())
-            near = (t_along >= lo) & (t_along <= hi) & (np.abs(a_off) <= gap_half + gp.side_m)
-            left, right = near & (a_off < 0), near & (a_off > 0)
-            if left.sum() < 10 or right.sum() < 10:
-                continue
-            bins = np.linspace(lo, hi, max(2, int((hi - lo) / 0.002)) + 1)
-            hl = np.histogram(t_along[left], bins)[0] > 0
-            hr = np.histogram(t_along[right], bins)[0] > 0
-            if (hl & hr).mean() < gp.min_side_share:
-                continue
-            # nothing stands in the strip (a wall's base with its stereo shadow beside it is not a gap)
-            allp = pts[np.isfinite(z)]
-            d_all = allp - c3
-            strip = (np.abs(d_all @ across) <= gap_half + 0.002) & (d_all @ u >= lo) & (d_all @ u <= hi)
-            in_front = (allp[strip] @ s.normal + s.offset) > 4.0 * float(noise_full.sigma_m(s.z_m)) + 0.001
-            if strip.any() and in_front.mean() > 0.05:
-                continue
-            # and the plates reach well beyond: not holes along a narrow face (a plate's edge face)
-            far = (t_along >= lo) & (t_along <= hi) & (np.abs(a_off) >= gp.far_m) & (np.abs(a_off) <= 2 * gp.far_m)
-            fl = np.histogram(t_along[far & (a_off < 0)], bins)[0] > 0
-            fr = np.histogram(t_along[far & (a_off > 0)], bins)[0] > 0
-            if (fl & fr).mean() < gp.min_side_share:
-                continue
-            # each plate's edge lies between its last pixel on the plane and the first pixel that sees
-            # through the gap; the seam is midway between the two edges
-            h_off = (g - c3) @ across
-            edge_l = 0.5 * (float(np.percentile(a_off[left], 97)) + float(np.percentile(h_off, 3)))
-            edge_r = 0.5 * (float(np.percentile(a_off[right], 3)) + float(np.percentile(h_off, 97)))
-            width = edge_r - edge_l
-            if not (0.0 < width < 0.006):
-                continue
-            # a gap is empty: inside it, far fewer pixels lie on the plate than beside it (random dropouts on a
-            # face seen at a grazing angle line up as well as a gap's dots, but between them the face is there)
-            centre = 0.5 * (edge_l + edge_r)
-            half = max(0.25 * width, 0.5 * float(noise_full.spacing_m(s.z_m)))
-            rel = np.abs(a_off - centre)
-            along = (t_along >= lo) & (t_along <= hi)
-            dens_in = float((along & (rel <= half)).sum()) / half
-            dens_side = float((along & (rel >= 0.5 * width + 0.001) & (rel <= 0.5 * width + 0.004)).sum()) / 0.003
-            if dens_side <= 0 or dens_in > 0.5 * dens_side:
-                continue
-            mid = c3 + 0.5 * (edge_l + edge_r) * across
-            pts_seam = np.array([mid + lo * u, mid + hi * u])
-            nrm = np.tile(s.normal, (2, 1))
-            out.append(SeamCurve("linear", "butt", pts_seam, nrm, nrm, (s.label, s.label), int(near.sum()), s.rms_m,
-                                 gap_m=width))  # fmt: skip
+            seam = _gap_between(g, u, s, pts[on_plane], pts[np.isfinite(z)], noise_full, gp)
+            if seam is not None:
+                out.append(seam)
     return out
+
+
+def _plane_window(surfaces: SurfaceSet, label: int, shape: tuple[int, int], gp: InnerGapParams,
+                  ) -> tuple[tuple[int, int, int, int], NDArray[np.bool_], NDArray[np.bool_]] | None:  # fmt: skip
+    """A plane's full-resolution window (y0, y1, x0, x1), its outline there with holes closed, and that
+    outline eroded by a pixel; None for a plane too small to hold a gap."""
+    import cv2
+
+    f = surfaces.factor
+    H, W = shape
+    small = (surfaces.labels == label).astype(np.uint8)
+    ys, xs = np.nonzero(small)
+    if len(ys) < 50:
+        return None
+    y0, y1 = max(ys.min() * f - f, 0), min((ys.max() + 1) * f + f, H)
+    x0, x1 = max(xs.min() * f - f, 0), min((xs.max() + 1) * f + f, W)
+    mask = cv2.resize(small[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1], None, fx=f, fy=f,
+                      interpolation=cv2.INTER_NEAREST)  # fmt: skip
+    region = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    oy, ox = ys.min() * f - y0, xs.min() * f - x0
+    region[oy : oy + mask.shape[0], ox : ox + mask.shape[1]] = mask[: y1 - y0 - oy, : x1 - x0 - ox]
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (gp.close_px, gp.close_px))
+    filled = cv2.morphologyEx(region, cv2.MORPH_CLOSE, k).astype(bool)
+    inner = cv2.erode(filled.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    return (y0, y1, x0, x1), filled, inner
+
+
+def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp: FloatArray, noise_full: NoiseModel,
+                 gp: InnerGapParams) -> SeamCurve | None:  # fmt: skip
+    """The butt seam along one line of hole points ``g`` (direction ``u``) on plane ``s``, when the plane's
+    points ``pp`` lie on both sides of it all along, nothing of ``allp`` stands in it, the plates reach well
+    beyond, and it is empty; None otherwise."""
+    c3 = g.mean(axis=0)
+    w = np.linalg.eigvalsh(np.cov((g - c3).T))
+    u = u - (u @ s.normal) * s.normal
+    u /= np.linalg.norm(u)
+    across = np.cross(s.normal, u)
+    # the plate on both sides: on-plane points within side_m of the gap line
+    d = pp - c3
+    a_off, t_along = d @ across, d @ u
+    gap_half = 2.0 * float(np.sqrt(max(w[1], 0.0))) + 0.5 * float(noise_full.spacing_m(s.z_m))
+    tg = (g - c3) @ u
+    lo, hi = float(tg.min()), float(tg.max())
+    near = (t_along >= lo) & (t_along <= hi) & (np.abs(a_off) <= gap_half + gp.side_m)
+    left, right = near & (a_off < 0), near & (a_off > 0)
+    if left.sum() < 10 or right.sum() < 10:
+        return None
+    bins = np.linspace(lo, hi, max(2, int((hi - lo) / 0.002)) + 1)
+    hl = np.histogram(t_along[left], bins)[0] > 0
+    hr = np.histogram(t_along[right], bins)[0] > 0
+    if (hl & hr).mean() < gp.min_side_share:
+        return None
+    # nothing stands in the strip (a wall's base with its stereo shadow beside it is not a gap)
+    d_all = allp - c3
+    strip = (np.abs(d_all @ across) <= gap_half + 0.002) & (d_all @ u >= lo) & (d_all @ u <= hi)
+    in_front = (allp[strip] @ s.normal + s.offset) > 4.0 * float(noise_full.sigma_m(s.z_m)) + 0.001
+    if strip.any() and in_front.mean() > 0.05:
+        return None
+    # and the plates reach well beyond: not holes along a narrow face (a plate's edge face)
+    far = (t_along >= lo) & (t_along <= hi) & (np.abs(a_off) >= gp.far_m) & (np.abs(a_off) <= 2 * gp.far_m)
+    fl = np.histogram(t_along[far & (a_off < 0)], bins)[0] > 0
+    fr = np.histogram(t_along[far & (a_off > 0)], bins)[0] > 0
+    if (fl & fr).mean() < gp.min_side_share:
+        return None
+    # each plate's edge lies between its last pixel on the plane and the first pixel that sees
+    # through the gap; the seam is midway between the two edges
+    h_off = (g - c3) @ across
+    edge_l = 0.5 * (float(np.percentile(a_off[left], 97)) + float(np.percentile(h_off, 3)))
+    edge_r = 0.5 * (float(np.percentile(a_off[right], 3)) + float(np.percentile(h_off, 97)))
+    width = edge_r - edge_l
+    if not (0.0 < width < 0.006):
+        return None
+    # a gap is empty: inside it, far fewer pixels lie on the plate than beside it (random dropouts on a
+    # face seen at a grazing angle line up as well as a gap's dots, but between them the face is there)
+    centre = 0.5 * (edge_l + edge_r)
+    half = max(0.25 * width, 0.5 * float(noise_full.spacing_m(s.z_m)))
+    rel = np.abs(a_off - centre)
+    along = (t_along >= lo) & (t_along <= hi)
+    dens_in = float((along & (rel <= half)).sum()) / half
+    dens_side = float((along & (rel >= 0.5 * width + 0.001) & (rel <= 0.5 * width + 0.004)).sum()) / 0.003
+    if dens_side <= 0 or dens_in > 0.5 * dens_side:
+        return None
+    mid = c3 + centre * across
+    pts_seam = np.array([mid + lo * u, mid + hi * u])
+    nrm = np.tile(s.normal, (2, 1))
+    return SeamCurve("linear", "butt", pts_seam, nrm, nrm, (s.label, s.label), int(near.sum()), s.rms_m,
+                     gap_m=width)  # fmt: skip
 
 
 def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,
