@@ -156,6 +156,11 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         # sigma would cut one tail of its residuals and tilt the plane
         on_a = side_a & (ra <= rp.inlier_sigma * _face_sigma(ra[side_a], sig, side_a))
         on_b = side_b & (rb <= rp.inlier_sigma * _face_sigma(rb[side_b], sig, side_b))
+        # a face that ends inside the band (a bevel's convex edge with the plate's top) is rounded there as
+        # at the corner: its last few sigma would tilt the plane too
+        margin = rp.corner_sigma * sig + spacing
+        on_a &= _short_of_far_edge(da, on_a, margin, rp.band_m)
+        on_b &= _short_of_far_edge(db, on_b, margin, rp.band_m)
         if on_a.sum() < 10 or on_b.sum() < 10:
             return s
         na, _, _ = _fit_plane(q[on_a])
@@ -179,7 +184,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     if all_a.sum() < 10 or all_b.sum() < 10:
         return s
     gap = 0.0
-    edges = None if s.joint != "v_groove" else _root_edges(q, line0, u, va, vb, a, b, sig, spacing, (p0, p1),
+    edges = None if s.joint != "v_groove" else _root_edges(q, others, line0, u, va, vb, a, b, sig, spacing, (p0, p1),
                         max_reach_m=min(float(np.median(da[all_a])), float(np.median(db[all_b]))), rp=rp)  # fmt: skip
     if edges is not None:
         edge_a, edge_b = line0 + edges[0] * va, line0 + edges[1] * vb
@@ -195,7 +200,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
                    support=int(on_a.sum() + on_b.sum()), rms_m=rms, gap_m=gap)  # fmt: skip
 
 
-def _root_edges(q: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray, vb: FloatArray, a: Surface,
+def _root_edges(q: FloatArray, others: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray, vb: FloatArray, a: Surface,
                 b: Surface, sig: FloatArray, spacing: FloatArray, ends: tuple[FloatArray, FloatArray], *,
                 max_reach_m: float, rp: RefineParams) -> tuple[float, float] | None:  # fmt: skip
     """Where each face's lower edge lies (its distance from the intersection along the face) when the root
@@ -227,13 +232,18 @@ def _root_edges(q: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray,
             s_on = ((-S.offset / (rays @ S.normal))[:, None] * rays - line0) @ v
         keep = np.isfinite(s_on) & (s_on >= 0.0) & (s_on < max_reach_m) & (t >= t0) & (t <= t1)
         edges = np.arange(0.0, max_reach_m + width, width)
-        n_face = np.histogram(s_on[keep & (np.abs(res) <= 2.0 * sig)], bins=edges)[0]
-        free = keep & (res < -3.0 * sig)
+        mine = np.abs(res) <= others
+        n_face = np.histogram(s_on[keep & (np.abs(res) <= 2.0 * sig) & mine], bins=edges)[0]
+        free = keep & ((res < -3.0 * sig) | (~mine & (others <= 2.0 * sig)))
         n_free = np.histogram(s_on[free], bins=edges)[0]
-        passing = np.flatnonzero((n_free >= 3) & (n_free >= n_face))
-        if passing.size == 0:
-            continue
-        reach = float(edges[passing[-1] + 1])
+        # the face's lower edge: the change point below which the rays that passed the plane outnumber the
+        # ones that met the face most (a step fitted to the two counts, robust to a stray bin higher up)
+        lead = np.concatenate([[0], np.cumsum(n_free - n_face)])
+        e = int(np.argmax(lead))
+        seen_free, seen_face = np.flatnonzero(n_free[:e]), e + np.flatnonzero(n_face[e:])
+        if lead[e] < 3 or seen_face.size == 0 or seen_face[0] - seen_free[-1] > 2:
+            continue  # no edge, or unseen bins between the last passing ray and the face: no edge to place
+        reach = float(edges[e])
         k = np.floor((t[free & (s_on <= reach)] - t0) / step).astype(int)
         if np.unique(np.clip(k, 0, bins_t - 1)).size < 0.3 * bins_t:
             continue
@@ -248,6 +258,16 @@ def _root_edges(q: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray,
         return None
     level = float(np.mean(levels))
     return level / max(float(va @ up), 1e-6), level / max(float(vb @ up), 1e-6)
+
+
+def _short_of_far_edge(d: FloatArray, on: NDArray[np.bool_], margin: FloatArray, band_m: float) -> NDArray[np.bool_]:
+    """Per point: not within ``margin`` of where the face's support ends, when it ends inside the band."""
+    if on.sum() < 10:
+        return on
+    far = float(np.percentile(d[on], 99.0))
+    if far >= band_m - float(np.median(margin[on])):
+        return np.ones_like(on)
+    return d < far - margin
 
 
 def _face_sigma(res: FloatArray, sig: FloatArray, side: NDArray[np.bool_]) -> FloatArray:
