@@ -94,10 +94,11 @@ def _largest_connected(sub: NDArray[np.int64], pixels: NDArray[np.int64], width:
 
 
 def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.random.Generator, *,
-                   pixels: NDArray[np.int64], width: int, max_planes: int = 8,
+                   pixels: NDArray[np.int64] | None, width: int, max_planes: int = 8,
                    trials: int = 150) -> list[NDArray[np.int64]]:  # fmt: skip
     """Index sets of the planes found one after another (largest first) in (N, 3) points; each plane keeps
-    only its largest connected piece of pixels (scattered inliers of a tilted plane are not a surface)."""
+    only its largest connected piece of pixels (scattered inliers of a tilted plane are not a surface), when
+    the points' flat pixel indices ``pixels`` are given."""
     left = np.arange(len(q))
     out: list[NDArray[np.int64]] = []
     while len(left) >= min_points and len(out) < max_planes:
@@ -124,7 +125,7 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
         inl = left[np.abs(q[left] @ n2 + d2) <= tol[left]]
         if len(inl) < min_points:
             break
-        piece = _largest_connected(inl, pixels, width)
+        piece = inl if pixels is None else _largest_connected(inl, pixels, width)
         if len(piece) >= min_points:
             out.append(piece)
             left = np.setdiff1d(left, piece, assume_unique=True)
@@ -401,6 +402,14 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
             return None
     if inl.mean() < min_share or inl.sum() < min_points or not _two_dimensional(q[inl], spacing, sp):
         return None
+    if not _turns(trial, q[inl], sp.cylinder_min_turn_rad) or not _normals_follow(trial, q[inl], normals[inl]):
+        return None  # hardly bent, or bent only at its edges: a plane, or a blurred fold between two
+    # a narrow flat face with its rounded edges bends like a wide cylinder: of the cylinder's own points, the
+    # bend must explain at least a surface's worth (``min_points``) that the best plane leaves out
+    planes = _ransac_planes(q[inl], tol[inl], min_points, np.random.default_rng(0), pixels=None, width=0,
+                            max_planes=1)  # fmt: skip
+    if sum(len(k) for k in planes) + min_points > inl.sum():
+        return None
     crms = float(np.sqrt(np.mean(cres[inl] ** 2)))
     return replace(trial, label=label, rms_m=crms, n_points=int(inl.sum()), centroid=q[inl].mean(axis=0)), inl
 
@@ -451,13 +460,35 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
     return lab
 
 
+def _normals_follow(c: Surface, q: FloatArray, normals: FloatArray) -> bool:
+    """Whether the measured normals of the points ``q`` of cylinder ``c`` turn with their position around its
+    axis, as on a cylinder: their median angular offset from the radial direction is under an eighth of the
+    points' angular span (a flat face with bent edges, fitted by a wide cylinder, has normals that stay put
+    while the position turns: offsets near a quarter of the span). True when too few normals are known."""
+    ok = np.isfinite(normals).all(axis=1)
+    if ok.sum() < 10:
+        return True
+    e1, e2 = axis_basis(c.axis)
+    span, pos = _span_rad(c, q[ok])
+    n = normals[ok]
+    off = np.angle(np.exp(1j * (np.arctan2(n @ e2, n @ e1) - pos)))
+    off = np.minimum(np.abs(off), np.pi - np.abs(off))  # normals point out of the surface or into it
+    return float(np.median(off)) < span / 8.0
+
+
 def _turns(c: Surface, q: FloatArray, min_turn_rad: float) -> bool:
     """Whether the points of cylinder ``c`` span at least ``min_turn_rad`` around its axis."""
+    return _span_rad(c, q)[0] >= min_turn_rad
+
+
+def _span_rad(c: Surface, q: FloatArray) -> tuple[float, FloatArray]:
+    """The angle the points of cylinder ``c`` span around its axis, and each point's angle."""
     e1, e2 = axis_basis(c.axis)
     rel = q - c.centre
-    ang = np.sort(np.arctan2(rel @ e2, rel @ e1))
+    pos = np.arctan2(rel @ e2, rel @ e1)
+    ang = np.sort(pos)
     gaps = np.diff(np.concatenate([ang, [ang[0] + 2 * np.pi]]))
-    return bool(2 * np.pi - gaps.max() >= min_turn_rad)
+    return float(2 * np.pi - gaps.max()), pos
 
 
 def _grow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
