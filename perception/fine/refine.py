@@ -200,8 +200,8 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
                    support=int(on_a.sum() + on_b.sum()), rms_m=rms, gap_m=gap)  # fmt: skip
 
 
-def _root_edges(q: FloatArray, others: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray, vb: FloatArray, a: Surface,
-                b: Surface, sig: FloatArray, spacing: FloatArray, ends: tuple[FloatArray, FloatArray], *,
+def _root_edges(q: FloatArray, others: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray, vb: FloatArray,
+                a: Surface, b: Surface, sig: FloatArray, spacing: FloatArray, ends: tuple[FloatArray, FloatArray], *,
                 max_reach_m: float, rp: RefineParams) -> tuple[float, float] | None:  # fmt: skip
     """Where each face's lower edge lies (its distance from the intersection along the face) when the root
     between them is open; None when it is closed.
