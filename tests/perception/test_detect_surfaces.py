@@ -1,0 +1,92 @@
+"""The surfaces-first pipeline as a whole (perception/detect_surfaces.py): a rendered tee's fillet comes back on its
+truth with the result's bookkeeping; a bare table is NoSeamFound with the fitted surfaces; the work image's masks,
+the full-resolution noise model and the duplicate rule, exactly. (The steps have test files of their own under
+tests/perception/fine/.)"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from perception.detect import DetectParams
+from perception.detect_surfaces import _duplicates, _full, _work_image, detect_surfaces
+from perception.errors import NoSeamFound
+from perception.evaluate import point_to_polyline_distance
+from perception.fine.types import NoiseModel, SeamCurve
+from sim_fakes.render import render
+from sim_fakes.scenes import Scene
+from tests.perception.fine.scenes import TABLE, rendered, tee
+
+STEPS = ("backproject", "work_image", "noise", "surfaces", "support", "adjacency", "folds", "gaps", "grooves",
+         "refine", "inner_gaps", "steps", "merge", "view")  # fmt: skip
+
+
+def test_a_tees_visible_fillet_is_found_on_its_truth_with_every_step_timed_and_counted() -> None:
+    cap = rendered("tee").capture
+    result = detect_surfaces(cap)
+    [truth] = cap.ground_truth or ()
+    assert result.frame == "camera" and len(result.seams) == 1  # the far fillet is hidden behind the web
+    seam = result.seams[0]
+    assert seam.kind == "linear" and seam.joint == "fillet"
+    err = point_to_polyline_distance(seam.points, truth.points_camera)
+    assert float(np.median(err)) < 0.3e-3 and float(err.max()) < 1e-3
+    truth_len = float(np.linalg.norm(truth.points_camera[-1] - truth.points_camera[0]))
+    assert seam.length_m > 0.8 * truth_len
+    info = result.info
+    assert info["method"] == "surfaces" and info["work_factor"] == 1  # 640 wide: every pixel is worked on
+    assert 0.0 <= info["removed_share"] < 1.0
+    assert info["counts"]["raw"] == int(np.isfinite(cap.points_camera()[..., 2]).sum()) == result.point_counts["raw"]
+    assert info["counts"]["surfaces"] >= 3  # table, plate top, web side at least
+    assert sorted(k.removeprefix("step_") for k in result.timing_s if k.startswith("step_")) == sorted(STEPS)
+    assert result.timing_s["total"] >= result.timing_s["coarse"] + result.timing_s["fine"]
+
+
+def test_a_bare_table_has_no_seam_and_says_what_was_examined() -> None:
+    small = replace(tee().camera, width=160, height=90, fx=115.0, fy=115.0)  # a 16th of the pixels: one plane
+    bare = render(Scene("bare", "", (TABLE,), (), small), noise="none")
+    with pytest.raises(NoSeamFound, match=r"1 surface\(s\) fitted and 0 adjacent pair\(s\) examined") as err:
+        detect_surfaces(bare.capture)
+    surfaces = err.value.artifacts["surfaces"]
+    assert len(surfaces.surfaces) == 1 and surfaces.surfaces[0].kind == "plane"
+
+
+def test_the_work_image_takes_every_factor_th_pixel_inside_the_box_and_range() -> None:
+    organized = np.zeros((4, 6, 3), np.float32)
+    organized[..., 0] = np.arange(6)[None, :] * 0.1  # x = 0.0 .. 0.5
+    organized[..., 2] = 1.0
+    organized[1, 2, 2] = 3.0  # beyond the range window
+    organized[0, 4, 2] = np.nan
+    p = DetectParams(workspace_min_m=(0.05, -1.0, 0.0), workspace_max_m=(0.45, 1.0, 2.5), z_range_m=(0.2, 2.0))
+    work = _work_image(organized, 1, p)
+    assert work.dtype == np.float64 and work.shape == (4, 6, 3)
+    valid = np.isfinite(work[..., 2])
+    expected = np.ones((4, 6), bool)
+    expected[:, 0] = expected[:, 5] = False  # x = 0 and x = 0.5 lie outside the box
+    expected[1, 2] = expected[0, 4] = False
+    assert valid.tolist() == expected.tolist()
+    half = _work_image(organized, 2, DetectParams(z_range_m=(0.2, 2.0)))
+    assert half.shape == (2, 3, 3) and half[:, :, 0] == pytest.approx(np.array([[0.0, 0.2, 0.4]] * 2))
+    assert np.isnan(half[0, 2, 2]) and np.isfinite(half[1, 1, 2])  # (0, 4) is missing, (2, 2) is not taken
+
+
+def test_the_full_resolution_noise_has_the_same_depth_noise_and_finer_spacing() -> None:
+    work = NoiseModel(sigma_1m_m=0.0015, floor_m=0.0002, pixel_angle_rad=0.004)
+    full = _full(work, 2)
+    assert (full.sigma_1m_m, full.floor_m, full.pixel_angle_rad) == (0.0015, 0.0002, 0.002)
+
+
+def test_a_seam_duplicates_another_when_its_median_distance_is_within_the_limit() -> None:
+    def line(y: float, x1: float = 0.1) -> SeamCurve:
+        pts = np.array([[0.0, y, 0.8], [x1, y, 0.8]])
+        n = np.zeros((2, 3))
+        return SeamCurve("linear", "fillet", pts, n, n, (0, 1), 10, 0.0)
+
+    ref = [line(0.0)]
+    assert _duplicates(line(0.0015), ref)  # 1.5 mm off: within 2 mm
+    assert not _duplicates(line(0.0025), ref)
+    assert _duplicates(line(0.0035), ref, within_m=0.004)
+    # a seam running on past the other's end: most of its probe points are far from it
+    assert not _duplicates(line(0.0, x1=0.3), ref)
+    assert not _duplicates(line(0.0), [])
