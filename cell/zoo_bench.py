@@ -168,13 +168,7 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
     from perception.capture import load_capture
     from perception.detect import DetectParams, detect
     from perception.errors import NoSeamFound
-    from perception.evaluate import (
-        COVER_TOL_M,
-        MATCH_TOL_M,
-        evaluate_seams,
-        point_to_polyline_distance,
-        resample_polyline,
-    )
+    from perception.evaluate import MATCH_TOL_M, evaluate_seams, point_to_polyline_distance
     from perception.transforms import invert_X, transform_points
 
     meta = json.loads((folder / "zoo.json").read_text())
@@ -186,38 +180,83 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
     try:
         result = detect(cap, DetectParams() if method is None else DetectParams(method=method))  # type: ignore[arg-type]
     except NoSeamFound as err:
-        dt = time.perf_counter() - t0
-        nan = float("nan")
-        missed = [t["joint"] for t in meta["truth"]]
-        score = CaptureScore(**base, found=0, reported=0, false_seams=0, split_seams=0, rmse_mm=nan, p95_mm=nan,
-                             max_mm=nan, time_s=dt, outcome="no_seam", reason=str(err),
-                             missed_joints=missed)  # fmt: skip
-        return score, None
+        return _unscored(base, meta, time.perf_counter() - t0, "no_seam", str(err)), None
     except Exception as err:  # a bug: counted and shown, never hidden
-        dt = time.perf_counter() - t0
-        nan = float("nan")
-        score = CaptureScore(**base, found=0, reported=0, false_seams=0, split_seams=0, rmse_mm=nan, p95_mm=nan,
-                             max_mm=nan, time_s=dt, outcome="error", reason=f"{type(err).__name__}: {err}",
-                             missed_joints=[t["joint"] for t in meta["truth"]])  # fmt: skip
-        return score, None
+        return _unscored(base, meta, time.perf_counter() - t0, "error", f"{type(err).__name__}: {err}"), None
     dt = time.perf_counter() - t0
     X = cap.X_base_camera
     pts = [s.points if X is None else transform_points(invert_X(X), s.points) for s in result.seams]
     rep = evaluate_seams(pts, gt)
     found = [s.found and s.coverage >= COVER_FOUND for s in rep.seams]
     whole = [np.asarray(w["points_camera"]) for w in meta["seams"]]
+    m = _point_errors(rep.seams, meta["truth"], pts, whole)
+
+    # a seam assigned to no seen run but lying on a seam of the weldment is unseen, not false
+    def on_weldment(d: int) -> bool:
+        return any(float(np.median(point_to_polyline_distance(np.asarray(pts[d]), w))) <= MATCH_TOL_M for w in whole)
+
+    unseen = [d for d in rep.false_seams if on_weldment(d)]
+    e, es = m.errors_mm, m.errors_seen_mm
+    nan = float("nan")
+    score = CaptureScore(
+        **base,
+        found=int(sum(found)),
+        reported=len(result.seams),
+        false_seams=len(rep.false_seams) - len(unseen),
+        split_seams=int(sum(max(0, len(s.detected_ids) - 1) for s in rep.seams)),
+        rmse_mm=float(np.sqrt(np.mean(e**2))) if e.size else nan,
+        p95_mm=float(np.percentile(e, 95)) if e.size else nan,
+        max_mm=float(e.max()) if e.size else nan,
+        time_s=dt,
+        outcome="seams",
+        missed_joints=[meta["truth"][s.index]["joint"] for s, f in zip(rep.seams, found, strict=True) if not f],
+        unseen_seams=len(unseen),
+        overreach_mm=round(1000.0 * m.overreach_m, 1),
+        rmse_seen_mm=float(np.sqrt(np.mean(es**2))) if es.size else nan,
+        max_seen_mm=float(es.max()) if es.size else nan,
+        point_error_mm=[round(float(x), 4) for x in e],
+        point_range_m=[round(float(x), 4) for x in m.ranges_m],
+        point_incidence_rad=[round(float(x), 4) for x in m.incidence_rad],
+    )
+    return score, (result if keep_result else None)
+
+
+def _unscored(base: dict[str, Any], meta: dict[str, Any], dt: float, outcome: str, reason: str) -> CaptureScore:
+    """The score of a capture the detector gave no seams for: every seam missed, errors undefined."""
+    nan = float("nan")
+    return CaptureScore(**base, found=0, reported=0, false_seams=0, split_seams=0, rmse_mm=nan, p95_mm=nan,
+                        max_mm=nan, time_s=dt, outcome=outcome, reason=reason,
+                        missed_joints=[t["joint"] for t in meta["truth"]])  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _PointErrors:
+    """Per detected point of the assigned seams: the error to the weldment's whole seam and to its seen run (mm),
+    the range (m) and the worse of the two faces' incidence angles (rad); the longest overreach (m)."""
+
+    errors_mm: np.ndarray
+    errors_seen_mm: np.ndarray
+    ranges_m: np.ndarray
+    incidence_rad: np.ndarray
+    overreach_m: float
+
+
+def _point_errors(seams: Any, truth: list[dict[str, Any]], pts: list[Any], whole: list[np.ndarray]) -> _PointErrors:
+    """The point errors of every detected seam assigned to a seen run (``seams``: evaluate_seams' per-truth rows)."""
+    from perception.evaluate import COVER_TOL_M, point_to_polyline_distance, resample_polyline
+
     errs: list[np.ndarray] = []
     errs_seen: list[np.ndarray] = []
     ranges: list[np.ndarray] = []
     incid: list[np.ndarray] = []
     overreach_m = 0.0
-    for s in rep.seams:
-        truth = meta["truth"][s.index]
-        tp = np.asarray(truth["points_camera"])
-        na, nb = np.asarray(truth["normal_a_camera"]), np.asarray(truth["normal_b_camera"])
+    for s in seams:
+        t = truth[s.index]
+        tp = np.asarray(t["points_camera"])
+        na, nb = np.asarray(t["normal_a_camera"]), np.asarray(t["normal_b_camera"])
         for d in s.detected_ids:
             p = np.asarray(pts[d])
-            errs.append(point_to_polyline_distance(p, whole[truth["seam_index"]]) * 1000.0)
+            errs.append(point_to_polyline_distance(p, whole[t["seam_index"]]) * 1000.0)
             errs_seen.append(point_to_polyline_distance(p, tp) * 1000.0)
             dense = resample_polyline(p, 0.001)
             beyond = point_to_polyline_distance(dense, tp) > COVER_TOL_M
@@ -228,36 +267,10 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
             cos = np.minimum(-(na[k] * view).sum(axis=1), -(nb[k] * view).sum(axis=1))
             incid.append(np.arccos(np.clip(cos, -1.0, 1.0)))
 
-    # a seam assigned to no seen run but lying on a seam of the weldment is unseen, not false
-    def on_weldment(d: int) -> bool:
-        return any(float(np.median(point_to_polyline_distance(np.asarray(pts[d]), w))) <= MATCH_TOL_M for w in whole)
+    def joined(parts: list[np.ndarray]) -> np.ndarray:
+        return np.concatenate(parts) if parts else np.zeros(0)
 
-    unseen = [d for d in rep.false_seams if on_weldment(d)]
-    e = np.concatenate(errs) if errs else np.zeros(0)
-    es = np.concatenate(errs_seen) if errs_seen else np.zeros(0)
-    nan = float("nan")
-    rmse = float(np.sqrt(np.mean(e**2))) if e.size else nan
-    score = CaptureScore(
-        **base,
-        found=int(sum(found)),
-        reported=len(result.seams),
-        false_seams=len(rep.false_seams) - len(unseen),
-        split_seams=int(sum(max(0, len(s.detected_ids) - 1) for s in rep.seams)),
-        rmse_mm=rmse,
-        p95_mm=float(np.percentile(e, 95)) if e.size else nan,
-        max_mm=float(e.max()) if e.size else nan,
-        time_s=dt,
-        outcome="seams",
-        missed_joints=[meta["truth"][s.index]["joint"] for s, f in zip(rep.seams, found, strict=True) if not f],
-        unseen_seams=len(unseen),
-        overreach_mm=round(1000.0 * overreach_m, 1),
-        rmse_seen_mm=float(np.sqrt(np.mean(es**2))) if es.size else nan,
-        max_seen_mm=float(es.max()) if es.size else nan,
-        point_error_mm=[round(float(x), 4) for x in e],
-        point_range_m=[round(float(x), 4) for x in (np.concatenate(ranges) if ranges else [])],
-        point_incidence_rad=[round(float(x), 4) for x in (np.concatenate(incid) if incid else [])],
-    )
-    return score, (result if keep_result else None)
+    return _PointErrors(joined(errs), joined(errs_seen), joined(ranges), joined(incid), overreach_m)
 
 
 def _work(args: tuple[str, str, int, str | None]) -> CaptureScore:
