@@ -466,10 +466,15 @@ class Controller:
     # ------------------------------------------------------------------ dashboard
     def dashboard(self, line: str) -> str:
         """The dashboard server's answer to one command line (the texts a CB3 or e-Series sends)."""
-        # one if-chain over the commands, in the order of UR's dashboard manual: kept whole (92 lines) so that each
-        # command's answer reads next to its condition
+        # two if-chains over the commands, in the order of UR's dashboard manual, so that each command's answer
+        # reads next to its condition: what reports the controller's state, then what changes it
         cmd = line.strip()
         low = cmd.lower()
+        report = self._dashboard_report(low)
+        return report if report is not None else self._dashboard_command(cmd, low)
+
+    def _dashboard_report(self, low: str) -> str | None:
+        """The answer to a dashboard query of the controller's state, None when ``low`` is no query."""
         major, minor = self.cfg.controller_version[:2]
         new_dashboard = major == 5 and minor > 5
         if low == "robotmode":
@@ -494,6 +499,12 @@ class Controller:
             return f"{state} {self.program_name or self.loaded_program or '<unnamed>'}"
         if low == "get loaded program":
             return f"Loaded program: {self.loaded_program}" if self.loaded_program else "No program loaded"
+        if low == "isprogramsaved":
+            return f"true {self.loaded_program or '<unnamed>'}"
+        return None
+
+    def _dashboard_command(self, cmd: str, low: str) -> str:
+        """The answer to a dashboard command that acts (loads, plays, stops, powers, unlocks), or the refusal."""
         if low.startswith("load "):
             self.loaded_program = cmd[5:].strip()
             return f"Loading program: {self.loaded_program}"
@@ -547,8 +558,6 @@ class Controller:
             self.protective = False
             self.power_off()
             return "Restarting safety"
-        if low == "isprogramsaved":
-            return f"true {self.loaded_program or '<unnamed>'}"
         if low.startswith("setuserrole "):
             return "Setting user role: " + cmd.split(" ", 1)[1]
         if low == "quit":
