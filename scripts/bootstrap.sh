@@ -80,8 +80,12 @@ case "$job" in
         .venv/bin/ruff check .
         say "mypy"
         .venv/bin/mypy cell drivers perception calibration sim_fakes
-        say "pytest"
-        exec .venv/bin/python -m pytest -q -p no:cacheprovider
+        # on every core the machine gives this process (WELDCELL_TEST_WORKERS overrides), a file at a time per
+        # worker: a file's module-scoped fixtures (the UR cell of test_runner, the zoo cache) are set up once, and
+        # tests/conftest.py puts the slowest files first so that no worker is left alone with one at the end
+        workers="${WELDCELL_TEST_WORKERS:-$(nproc 2>/dev/null || echo 2)}"
+        say "pytest on $workers workers"
+        exec .venv/bin/python -m pytest -q -p no:cacheprovider -n "$workers" --dist loadfile --no-loadscope-reorder
         ;;
     *)
         say "unknown job '$job': use 'demo' or 'test'"; exit 2

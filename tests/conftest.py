@@ -12,6 +12,36 @@ import pytest
 
 from tests.seams_validation import invalid_seams_files
 
+# The slowest files, slowest first (wall seconds measured with --durations=0): scripts/bootstrap.sh runs the suite
+# with pytest-xdist's --dist loadfile --no-loadscope-reorder, which hands out whole files in collection order, so
+# these start first and no worker is left alone with a long file at the end. An ordering hint only: a file missing
+# here runs later, in its usual order; a stale list costs time, never a result.
+SLOW_FILES_FIRST = (
+    "tests/cell/test_runner.py",
+    "tests/cell/test_daemon.py",
+    "tests/cell/test_soak.py",
+    "tests/drivers/test_ur.py",
+    "tests/cell/test_real_bench.py",
+    "tests/cell/test_sample_package_data.py",
+    "tests/perception/test_detect.py",
+    "tests/cell/test_seam_bench.py",
+    "tests/sim_fakes/test_render.py",
+    "tests/cell/test_operator_page.py",
+    "tests/calibration/test_wizard.py",
+    "tests/cell/test_calibrate_cli.py",
+    "tests/perception/fine/test_grooves.py",
+    "tests/perception/fine/test_surfaces.py",
+    "tests/cell/test_sim_cli.py",
+    "tests/sim_fakes/test_zoo.py",
+    "tests/cell/test_daemon_ur.py",
+)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    rank = {path: k for k, path in enumerate(SLOW_FILES_FIRST)}
+    root = config.rootpath
+    items.sort(key=lambda item: rank.get(item.path.relative_to(root).as_posix(), len(rank)))  # stable
+
 
 def _report(bad: dict[Path, list[str]]) -> str:
     return "; ".join(f"{path}: {errors[0]} ({len(errors)} problem(s))" for path, errors in bad.items())
