@@ -72,12 +72,15 @@ def test_a_daemon_killed_mid_weld_on_the_ur5_leaves_the_arc_off_and_restarts_in_
         served.proc.wait(timeout=10)
     finally:
         served.close()
-    assert 0.2 < arc_off_s < 1.0, arc_off_s  # the watchdog's 0.3 s after the last kick, not the host
+    assert arc_off_s < 1.0, arc_off_s
     assert stopped_s < 2.0, stopped_s
     X_stopped = running.robot.X_base_tool()
     events = running.robot.events()
     stops = [e for e in events if e["kind"] == "digital_output" and "program stop" in e.get("cause", "")]
     assert [e["index"] for e in stops][-1:] == [ARC]
+    # the controller's own watchdog drove it low, not the host: read from the controller's log, not from the time
+    # since the kill (a host starved by a loaded machine may have missed its 0.3 s kick just before the kill)
+    assert "RTDE watchdog" in stops[-1]["cause"], stops[-1]
 
     restarted = Served(path)
     try:
