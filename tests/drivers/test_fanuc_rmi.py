@@ -6,8 +6,9 @@ fake FANUC (tests/drivers/test_fanuc.py) cannot be made to do."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
-from collections.abc import Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 
 import pytest
@@ -50,6 +51,20 @@ async def controller(session: Session, *, busy_first: int = 0) -> tuple[int, lis
     return connects.sockets[0].getsockname()[1], [connects, sessions]
 
 
+@contextlib.asynccontextmanager
+async def connected(session: Session, *, busy_first: int = 0, max_in_flight: int = 8) -> AsyncIterator[RMIClient]:
+    """A client connected to a scripted controller; closed, and the controller's ports with it, afterwards."""
+    port, servers = await controller(session, busy_first=busy_first)
+    client = RMIClient("127.0.0.1", port, timeout_s=3.0, max_in_flight=max_in_flight)
+    await client.connect()
+    try:
+        yield client
+    finally:
+        await client.close()
+        for server in servers:
+            server.close()
+
+
 def run(test: Callable[[], Awaitable[None]]) -> None:
     asyncio.run(asyncio.wait_for(test(), 10.0))
 
@@ -72,21 +87,16 @@ def test_a_busy_controller_is_asked_again_and_replies_are_matched_by_name_in_ord
         await reader.read()  # until the client closes
 
     async def test() -> None:
-        port, servers = await controller(ordered, busy_first=2)
-        client = RMIClient("127.0.0.1", port, timeout_s=3.0)
-        reply = await client.connect()
-        assert reply["PortNumber"] == client.session_port and client.connected
-        speed, _ = await asyncio.gather(client.read_tcp_speed_mm_s(), client.write_dout(3, True))
-        assert speed == 125.5
-        with pytest.raises(RMIMotionRejected, match="FRC_SetUFrameUTool refused by the controller: RMIT-002") as e:
-            await client.set_uframe_utool(uframe=1, utool=9)
-        assert e.value.code == ErrorID.INVALID_UTOOL_NUMBER
-        await client.close()
+        async with connected(ordered, busy_first=2) as client:  # two RMIT-026 answers before the session port
+            assert client.connected and client.session_port is not None
+            speed, _ = await asyncio.gather(client.read_tcp_speed_mm_s(), client.write_dout(3, True))
+            assert speed == 125.5
+            with pytest.raises(RMIMotionRejected, match="FRC_SetUFrameUTool refused by the controller: RMIT-002") as e:
+                await client.set_uframe_utool(uframe=1, utool=9)
+            assert e.value.code == ErrorID.INVALID_UTOOL_NUMBER
         assert not client.connected
         with pytest.raises(ConnectionLost, match="RMI session closed by the client"):
             await client.read_tcp_speed_mm_s()
-        for s in servers:
-            s.close()
 
     run(test)
 
@@ -110,27 +120,22 @@ def test_at_most_max_in_flight_instructions_are_outstanding_and_ids_are_consecut
 
     async def test() -> None:
         release.append(asyncio.Event())
-        port, servers = await controller(session)
-        client = RMIClient("127.0.0.1", port, timeout_s=3.0, max_in_flight=2)
-        await client.connect()
-        move = {"Instruction": "FRC_LinearMotion"}
-        s1, f1 = await client.submit(move)
-        s2, f2 = await client.submit(move)
-        assert (s1, s2, client.in_flight, client.next_sequence_id) == (1, 2, 2, 3)
-        third = asyncio.ensure_future(client.submit(move))  # waits for the window
-        await asyncio.sleep(0.2)
-        assert not third.done() and seen == [1, 2]
-        release[0].set()
-        s3, f3 = await third
-        assert s3 == 3 and seen == [1, 2, 3]
-        for seq, fut in ((s1, f1), (s2, f2), (s3, f3)):
-            assert (await RMIClient.wait_instruction(seq, fut, timeout_s=3.0))["SequenceID"] == seq
-        assert client.in_flight == 0
+        async with connected(session, max_in_flight=2) as client:
+            move = {"Instruction": "FRC_LinearMotion"}
+            s1, f1 = await client.submit(move)
+            s2, f2 = await client.submit(move)
+            assert (s1, s2, client.in_flight, client.next_sequence_id) == (1, 2, 2, 3)
+            third = asyncio.ensure_future(client.submit(move))  # waits for the window
+            await asyncio.sleep(0.2)
+            assert not third.done() and seen == [1, 2]
+            release[0].set()
+            s3, f3 = await third
+            assert s3 == 3 and seen == [1, 2, 3]
+            for seq, fut in ((s1, f1), (s2, f2), (s3, f3)):
+                assert (await RMIClient.wait_instruction(seq, fut, timeout_s=3.0))["SequenceID"] == seq
+            assert client.in_flight == 0
         with pytest.raises(ValueError, match=r"max_in_flight must be 1\.\.8, got 9"):
-            RMIClient("127.0.0.1", port, max_in_flight=9)
-        await client.close()
-        for s in servers:
-            s.close()
+            RMIClient("127.0.0.1", 1, max_in_flight=9)
 
     run(test)
 
@@ -148,22 +153,17 @@ def test_a_system_fault_fails_what_is_in_flight_and_stays_latched_until_a_reset(
         await reader.read()
 
     async def test() -> None:
-        port, servers = await controller(session)
-        client = RMIClient("127.0.0.1", port, timeout_s=3.0)
-        await client.connect()
-        seq, fut = await client.submit({"Instruction": "FRC_LinearMotion"})
-        with pytest.raises(SystemFault, match="reported FRC_SystemFault at SequenceID 1"):
-            await RMIClient.wait_instruction(seq, fut, timeout_s=3.0)
-        assert client.system_fault is not None and client.in_flight == 0
-        with pytest.raises(SystemFault, match="still latched: reset before sending motion"):
-            await client.submit({"Instruction": "FRC_LinearMotion"})
-        await client.reset()
-        assert client.system_fault is None
-        with pytest.raises(DeviceTimeout, match=r"did not answer FRC_GetStatus within 0\.3 s"):
-            await client.get_status(timeout_s=0.3)
-        await client.close()
-        for s in servers:
-            s.close()
+        async with connected(session) as client:
+            seq, fut = await client.submit({"Instruction": "FRC_LinearMotion"})
+            with pytest.raises(SystemFault, match="reported FRC_SystemFault at SequenceID 1"):
+                await RMIClient.wait_instruction(seq, fut, timeout_s=3.0)
+            assert client.system_fault is not None and client.in_flight == 0
+            with pytest.raises(SystemFault, match="still latched: reset before sending motion"):
+                await client.submit({"Instruction": "FRC_LinearMotion"})
+            await client.reset()
+            assert client.system_fault is None
+            with pytest.raises(DeviceTimeout, match=r"did not answer FRC_GetStatus within 0\.3 s"):
+                await client.get_status(timeout_s=0.3)
 
     run(test)
 
@@ -176,18 +176,13 @@ def test_the_controller_closing_the_session_fails_every_waiter_with_connection_l
         writer.close()
 
     async def test() -> None:
-        port, servers = await controller(session)
-        client = RMIClient("127.0.0.1", port, timeout_s=3.0)
-        await client.connect()
-        seq, fut = await client.submit({"Instruction": "FRC_LinearMotion"})
-        with pytest.raises(ConnectionLost, match="closed the RMI session"):
-            await client.command("FRC_GetStatus")
-        with pytest.raises(ConnectionLost, match="closed the RMI session"):
-            await RMIClient.wait_instruction(seq, fut, timeout_s=3.0)
-        assert not client.connected and client.in_flight == 0
-        await client.close()
-        for s in servers:
-            s.close()
+        async with connected(session) as client:
+            seq, fut = await client.submit({"Instruction": "FRC_LinearMotion"})
+            with pytest.raises(ConnectionLost, match="closed the RMI session"):
+                await client.command("FRC_GetStatus")
+            with pytest.raises(ConnectionLost, match="closed the RMI session"):
+                await RMIClient.wait_instruction(seq, fut, timeout_s=3.0)
+            assert not client.connected and client.in_flight == 0
 
     run(test)
 

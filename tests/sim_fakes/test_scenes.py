@@ -12,19 +12,7 @@ import pytest
 from perception.transforms import make_X
 from sim_fakes.hull import box_corners
 from sim_fakes.scenes import CYL_SIDE, SCENES, CameraSetup, Part, SeamDef, get_scene, with_resolution
-
-
-def face_distance(part: Part, face: int, p: np.ndarray) -> np.ndarray:
-    """|distance| of world points from the plane (or the cylinder side) of a box or cylinder part's face."""
-    X = part.X_world_part
-    q = (p - X[:3, 3]) @ X[:3, :3]  # into the part frame
-    if part.shape == "cylinder":
-        r, _, h = part.size
-        if face == CYL_SIDE:
-            return np.abs(np.hypot(q[:, 0], q[:, 1]) - r)
-        return np.abs(q[:, 2] - (0.0 if face == 1 else h))
-    axis, sign = divmod(face, 2)
-    return np.abs(q[:, axis] - (1 if sign else -1) * part.size[axis] / 2)
+from tests.sim_fakes.test_render import surface_distance
 
 
 @pytest.mark.parametrize("name", sorted(SCENES))
@@ -35,7 +23,7 @@ def test_every_seam_lies_on_both_its_faces_with_unit_in_face_directions(name: st
         (pa, fa), (pb, fb) = seam.faces
         assert pa != pb and "table" not in (scene.parts[pa].name, scene.parts[pb].name)
         a, b = scene.parts[pa], scene.parts[pb]
-        on_a, on_b = face_distance(a, fa, seam.points), face_distance(b, fb, seam.points)
+        on_a, on_b = surface_distance(a, fa, seam.points), surface_distance(b, fb, seam.points)
         # on both faces' planes (a butt seam: on the plates' common top plane, half a gap from each edge)
         assert on_a.max() < 1e-12 and on_b.max() < 1e-12, (seam.name, on_a.max(), on_b.max())
         for into, part, face in ((seam.into_a, a, fa), (seam.into_b, b, fb)):
