@@ -10,7 +10,6 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from perception.transforms import X_from_ur_pose
 
@@ -75,12 +74,7 @@ class Arm:
             residual = float(np.linalg.norm(e))
             if residual < tol:
                 return q, residual
-            J = np.zeros((6, 6))
-            p_end = T[:3, 3]
-            for i in range(6):
-                z = frames[i][:3, 2]
-                J[:3, i] = np.cross(z, p_end - frames[i][:3, 3])
-                J[3:, i] = z
+            J = _jacobian(frames)
             dq = J.T @ np.linalg.solve(J @ J.T + 1e-6 * np.eye(6), e)
             q += dq / max(1.0, float(np.abs(dq).max()) / 0.3)
         return q, residual
@@ -89,22 +83,62 @@ class Arm:
 def rotvec(R: FloatArray) -> FloatArray:
     """Rotation vector (3,) in radians of the (3, 3) rotation ``R``; angle in [0, π].
 
-    Not scipy's ``Rotation.from_matrix`` (which :mod:`perception.transforms` uses): the fake solves inverse kinematics
-    and integrates its motion with this every controller cycle (8 ms on a CB3), and from_matrix, which first finds
-    the nearest rotation, is about 15 times slower; with it the fake missed its cycles under load."""
-    c = min(1.0, max(-1.0, (float(np.trace(R)) - 1.0) / 2.0))
-    angle = math.acos(c)
-    vee = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if angle < 1e-9:
-        return 0.5 * vee
-    if math.pi - angle < 1e-5:  # near π the formula loses its axis: the general route
-        return np.asarray(Rotation.from_matrix(R).as_rotvec(), dtype=np.float64)
-    return angle / (2.0 * math.sin(angle)) * vee
+    scipy's own route (Shepperd's quaternion from the largest of the trace and the diagonal, its scalar part made
+    non-negative, then angle and axis), written out: the fake solves inverse kinematics, integrates its motion and
+    streams its pose with this every controller cycle (8 ms on a CB3), and ``Rotation.from_matrix`` costs about
+    0.3 ms a call. The fake's home pose, tool pointing down, is a rotation of exactly π, where the shorter formula
+    from the trace and the skew part loses its axis (7e-6 rad off at π - 1e-5); with scipy there the fake spent a
+    fifth of a core at rest and missed its cycles on a loaded machine."""
+    trace = float(R[0, 0] + R[1, 1] + R[2, 2])
+    diagonal = (float(R[0, 0]), float(R[1, 1]), float(R[2, 2]))
+    i = max(range(3), key=lambda n: diagonal[n])
+    if diagonal[i] >= trace:
+        j, k = (i + 1) % 3, (i + 2) % 3
+        quat = [0.0, 0.0, 0.0, float(R[k, j] - R[j, k])]  # x, y, z, w
+        quat[i] = 1.0 - trace + 2.0 * diagonal[i]
+        quat[j] = float(R[j, i] + R[i, j])
+        quat[k] = float(R[k, i] + R[i, k])
+    else:
+        quat = [float(R[2, 1] - R[1, 2]), float(R[0, 2] - R[2, 0]), float(R[1, 0] - R[0, 1]), 1.0 + trace]
+    norm = math.sqrt(sum(v * v for v in quat))
+    x, y, z, w = (v / norm for v in quat)
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    angle = 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), w)
+    scale = 2.0 + angle**2 / 12.0 + 7.0 * angle**4 / 2880.0 if angle <= 1e-3 else angle / math.sin(angle / 2.0)
+    return np.array([scale * x, scale * y, scale * z])
 
 
 def rotation(w: FloatArray) -> FloatArray:
-    """(3, 3) rotation of the rotation vector ``w`` (radians)."""
-    return np.asarray(Rotation.from_rotvec(w).as_matrix(), dtype=np.float64)
+    """(3, 3) rotation of the rotation vector ``w`` (radians), by Rodrigues' formula (the motion integrates with
+    it every controller cycle: scipy's ``Rotation.from_rotvec`` costs ten times as much per call)."""
+    wx, wy, wz = float(w[0]), float(w[1]), float(w[2])
+    angle = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if angle < 1e-12:
+        return np.array([[1.0, -wz, wy], [wz, 1.0, -wx], [-wy, wx, 1.0]])
+    kx, ky, kz = wx / angle, wy / angle, wz / angle
+    s, c = math.sin(angle), math.cos(angle)
+    v = 1.0 - c
+    return np.array(
+        [
+            [c + kx * kx * v, kx * ky * v - kz * s, kx * kz * v + ky * s],
+            [ky * kx * v + kz * s, c + ky * ky * v, ky * kz * v - kx * s],
+            [kz * kx * v - ky * s, kz * ky * v + kx * s, c + kz * kz * v],
+        ]
+    )
+
+
+def _jacobian(frames: Sequence[FloatArray]) -> FloatArray:
+    """The (6, 6) geometric Jacobian of the chain ``frames`` (revolute joints about each frame's z): rows 0-2 the
+    tool's linear velocity per joint rate (z_i x (p_end - p_i)), rows 3-5 its angular velocity (z_i)."""
+    Z = np.array([frames[i][:3, 2] for i in range(6)])
+    P = frames[-1][:3, 3] - np.array([frames[i][:3, 3] for i in range(6)])
+    J = np.empty((6, 6))
+    J[0] = Z[:, 1] * P[:, 2] - Z[:, 2] * P[:, 1]
+    J[1] = Z[:, 2] * P[:, 0] - Z[:, 0] * P[:, 2]
+    J[2] = Z[:, 0] * P[:, 1] - Z[:, 1] * P[:, 0]
+    J[3:] = Z.T
+    return J
 
 
 def ur_pose(p: FloatArray, R: FloatArray) -> list[float]:

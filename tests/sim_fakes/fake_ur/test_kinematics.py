@@ -35,3 +35,40 @@ def test_pose_vectors_are_those_of_perception_transforms() -> None:
     np.testing.assert_allclose(pose_to_X(pose), X_from_ur_pose(pose), atol=1e-15)
     X = pose_to_X(pose)
     np.testing.assert_allclose(ur_pose(X[:3, 3], X[:3, :3]), ur_pose_from_X(X), atol=1e-15)
+
+
+def test_rotation_vectors_and_rotations_equal_scipys_near_pi_and_elsewhere() -> None:
+    # the fast formulas the fake runs every cycle against scipy's, on angles from 0 to π (the home pose is at π)
+    from scipy.spatial.transform import Rotation
+
+    from sim_fakes.fake_ur.kinematics import rotation, rotvec
+
+    rng = np.random.default_rng(3)
+    axes = rng.normal(size=(400, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate([[0.0, 1e-13, 1e-6, 0.3, 2.0], math.pi - np.logspace(-12, -4, 195), [math.pi] * 200])
+    axes[:3] = [(1.0, 1.0, 0.0) / np.sqrt(2.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0)]  # the home pose's axis first
+    for axis, angle in zip(axes, angles, strict=True):
+        w = angle * axis
+        R_ref = Rotation.from_rotvec(w).as_matrix()
+        np.testing.assert_allclose(rotation(w), R_ref, atol=2e-15)
+        np.testing.assert_allclose(rotvec(R_ref), Rotation.from_matrix(R_ref).as_rotvec(), atol=1e-14)
+    # the home pose exactly: (π/√2, π/√2, 0), the sign scipy gives
+    R_home = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    np.testing.assert_allclose(rotvec(R_home), [math.pi / 2**0.5, math.pi / 2**0.5, 0.0], atol=1e-15)
+
+
+def test_the_jacobian_is_the_derivative_of_the_forward_kinematics() -> None:
+    from sim_fakes.fake_ur.kinematics import _jacobian, rotvec
+
+    arm = Arm("UR5")
+    q = np.array(Q_HOME) + np.array([0.1, -0.2, 0.3, 0.05, 0.4, -0.3])
+    J = _jacobian(arm.chain(q))
+    X0 = arm.fk(q)
+    h = 1e-7
+    for i in range(6):
+        dq = np.zeros(6)
+        dq[i] = h
+        X1 = arm.fk(q + dq)
+        np.testing.assert_allclose(J[:3, i], (X1[:3, 3] - X0[:3, 3]) / h, atol=1e-6)
+        np.testing.assert_allclose(J[3:, i], rotvec(X1[:3, :3] @ X0[:3, :3].T) / h, atol=1e-6)
