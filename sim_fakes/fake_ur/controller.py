@@ -123,8 +123,10 @@ class Controller:
         self.payload_kg = 0.0
         self.payload_cog_m = [0.0, 0.0, 0.0]
         self.external_wrench = [0.0] * 6
-        # rtde_set_watchdog: variable -> (min frequency Hz, action, controller time of its last update)
+        # rtde_set_watchdog: variable -> (min frequency Hz, action, cycle_time_s of its last update)
         self.rtde_watchdogs: dict[str, tuple[float, str, float]] = {}
+        self.cycle_time_s = 0.0
+        """The controller's running time: the sum of its control cycles' steps (each at most 50 ms; see tick)."""
         self.log = ControllerLog()
 
     def record(self, kind: str, **data: Any) -> None:
@@ -206,10 +208,15 @@ class Controller:
         if min_frequency_hz <= 0.0:
             self.rtde_watchdogs.pop(variable, None)
             return
-        self.rtde_watchdogs[variable] = (min_frequency_hz, action, self.now())
+        self.rtde_watchdogs[variable] = (min_frequency_hz, action, self.cycle_time_s)
 
     def check_rtde_watchdogs(self) -> None:
-        now = self.now()
+        """Take the action of each watchdog whose variable no input package has updated for longer than 1/f s of
+        the controller's running time (:attr:`cycle_time_s`): a real controller receives every package as it comes,
+        and a fake whose process was not scheduled for a while finds the host's packages of that while still
+        queued in its sockets, read only after this check; wall time would count its own stall as the host's
+        silence."""
+        now = self.cycle_time_s
         for variable, (frequency, action, last) in list(self.rtde_watchdogs.items()):
             silent_s = now - last
             if silent_s <= 1.0 / frequency or action == "ignore":
@@ -323,6 +330,8 @@ class Controller:
         return self.motion
 
     def tick(self, dt: float) -> None:
+        """One control cycle of ``dt`` seconds (the server passes the time since the last cycle, at most 50 ms)."""
+        self.cycle_time_s += dt
         self.advance_power()
         self.check_rtde_watchdogs()
         if self.runtime_state == RUNTIME_PAUSED:
@@ -427,7 +436,7 @@ class Controller:
 
     def apply_inputs(self, values: dict[str, Any]) -> None:
         """Apply one input data package: registers, digital/analog outputs, speed slider."""
-        now = self.now()
+        now = self.cycle_time_s
         for name, value in values.items():
             if name in self.regs:
                 self.regs[name] = value
