@@ -638,9 +638,19 @@ class URRobot:
         n_waypoints: int,
         on_progress: Callable[[int], None] | None,
     ) -> None:
-        """Poll until the asynchronous motion ends; raise on safety stops, lost data or the deadline."""
+        """Poll until the asynchronous motion ends; raise on safety stops, lost data or the deadline.
+
+        The controller's async operation status comes through the control interface's RTDE stream, the pose and the
+        speed through the receive interface's: two connections read by two threads of the worker, which a loaded
+        host runs tens of milliseconds apart (a soak saw a finished move "end 1.3 mm short" of its target: the pose
+        was older than the status). So the motion has started once either shows it (the operation running, the arm
+        moving); it has ended once the operation is over and the arm rests on its target; an arm that rests away
+        from its target (stopped short, or stopped before the operation was ever seen running) is judged only after
+        ``stale_after_s`` at rest, time for the receive stream to catch up (a stream further behind counts as lost).
+        """
         sent = time.monotonic()
-        seen_running = False
+        started = False
+        resting_since: float | None = None  # when the arm was first seen at rest, the operation over, off target
         reported = -1
 
         def report(upto: int) -> None:
@@ -657,14 +667,20 @@ class URRobot:
                     raise DeviceFault(
                         f"{self.name}: the control script stopped during {what}; see the controller's log"
                     )
-                if st.async_running:
-                    seen_running = True
-                    report(st.async_progress - 1)
+                now = time.monotonic()
+                if st.async_running or st.moving:
+                    started, resting_since = True, None
+                    if st.async_running:
+                        report(st.async_progress - 1)
                 else:
                     arrived, _, _ = self._arrived(st, X_target)
-                    if seen_running or (arrived and not st.moving and time.monotonic() - sent > 0.1):
+                    if arrived and (started or now - sent > 0.1):
                         break
-                if time.monotonic() > deadline:
+                    if not arrived:
+                        resting_since = now if resting_since is None else resting_since
+                        if now - resting_since > self.stale_after_s:
+                            break
+                if now > deadline:
                     self._stop_quietly()
                     raise MotionTimeout(
                         f"{self.name}: {what} did not finish before its timeout; stopped at "
