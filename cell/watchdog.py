@@ -11,7 +11,6 @@ device that does not answer.
 
 from __future__ import annotations
 
-import concurrent.futures
 import logging
 import threading
 import time
@@ -149,26 +148,41 @@ class DeviceWatchdog:
         return readings.problem(self.cell.robot.name, track.name if track is not None else None)
 
     def _watch(self) -> None:
-        poller = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="cell-device-poll")
+        poll: _Poll | None = None
+        while not self._stop.wait(self.period_s):
+            state = self._state()
+            if state in (*FINAL_STATES, S.PAUSED) or self._fired:
+                continue
+            # the deadline applies while something moves or the arc may be on; while capturing, detecting or
+            # planning this process's own computing can hold the GIL for longer than that (the drivers' own
+            # timeouts still end a poll that gets no answer)
+            limit = self.answer_timeout_s if state in MOTION_STATES else None
+            if poll is None or poll.done.is_set():  # a poll still stuck in a driver is waited for, not doubled
+                poll = _Poll(self._poll)
+            if poll.done.wait(limit):
+                problem = poll.problem
+            else:
+                problem = f"no status from the robot or the track within {self.answer_timeout_s:.1f} s"
+            if problem is not None and not self._stop.is_set():
+                self._fired = True
+                logger.error("watchdog: %s", problem)
+                self._fault_now(f"watchdog: {problem}")
+
+
+class _Poll:
+    """One poll of the devices in a daemon thread of its own: a driver that hangs holds neither the watchdog nor,
+    at exit, the interpreter (a pool's worker threads are joined without a bound when the process exits)."""
+
+    def __init__(self, poll: Callable[[], str | None]) -> None:
+        self.problem: str | None = None
+        self.done = threading.Event()
+        self._poll = poll
+        threading.Thread(target=self._run, name="cell-device-poll", daemon=True).start()
+
+    def _run(self) -> None:
         try:
-            while not self._stop.wait(self.period_s):
-                state = self._state()
-                if state in (*FINAL_STATES, S.PAUSED) or self._fired:
-                    continue
-                # the deadline applies while something moves or the arc may be on; while capturing, detecting or
-                # planning this process's own computing can hold the GIL for longer than that (the drivers' own
-                # timeouts still end a poll that gets no answer)
-                limit = self.answer_timeout_s if state in MOTION_STATES else None
-                poll = poller.submit(self._poll)
-                try:
-                    problem = poll.result(timeout=limit)
-                except concurrent.futures.TimeoutError:
-                    problem = f"no status from the robot or the track within {self.answer_timeout_s:.1f} s"
-                except Exception as err:  # a bug in a driver's status path must still stop the cell
-                    problem = f"device status failed: {type(err).__name__}: {err}"
-                if problem is not None and not self._stop.is_set():
-                    self._fired = True
-                    logger.error("watchdog: %s", problem)
-                    self._fault_now(f"watchdog: {problem}")
+            self.problem = self._poll()
+        except Exception as err:  # a bug in a driver's status path must still stop the cell
+            self.problem = f"device status failed: {type(err).__name__}: {err}"
         finally:
-            poller.shutdown(wait=False, cancel_futures=True)
+            self.done.set()
