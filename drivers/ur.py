@@ -57,7 +57,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -168,6 +168,9 @@ class URRobot:
         self._proc: multiprocessing.process.BaseProcess | None = None
         self._conn: Connection | None = None
         self._lock = threading.RLock()
+        self._status_conn: Connection | None = None  # the worker's status channel (state(), get_X_base_tool())
+        self._status_lock = threading.Lock()
+        self._status_seq = 0
         self._last_timestamp = math.nan
         self._last_change = 0.0
 
@@ -183,15 +186,19 @@ class URRobot:
             self._preflight()
             ctx = multiprocessing.get_context("spawn")
             parent, child = ctx.Pipe()
+            status_parent, status_child = ctx.Pipe()
             proc = ctx.Process(
                 target=worker_main,
-                args=(child, self.host, self.dashboard_port, self.heartbeat_timeout_s),
+                args=(child, status_child, self.host, self.dashboard_port, self.heartbeat_timeout_s),
                 name=f"ur-rtde-{self.name}-{self.host}",
                 daemon=True,
             )
             proc.start()
             child.close()
+            status_child.close()
             self._proc, self._conn = proc, parent
+            with self._status_lock:
+                self._status_conn = status_parent
             log.debug("%s: connecting to %s (RTDE receive, control and IO interfaces)", self.name, self.host)
             try:
                 raw = self._request("connect", timeout_s=self.connect_timeout_s)
@@ -235,6 +242,9 @@ class URRobot:
         self._proc = self._conn = None
         if conn is not None:
             conn.close()
+        status_conn, self._status_conn = self._status_conn, None
+        if status_conn is not None:
+            status_conn.close()  # a state() waiting on it sees the channel end
         if proc is not None:
             proc.join(grace_s)
             if proc.is_alive():
@@ -264,7 +274,10 @@ class URRobot:
                 )
         if reply[0] == "ok":
             return reply[1]
-        kind, message = reply[1], reply[2]
+        self._raise_reply(op, reply[1], reply[2])
+
+    def _raise_reply(self, op: str, kind: str, message: str) -> NoReturn:
+        """Raise the driver's error for an exception ``kind: message`` that ``op`` raised in the worker."""
         cause = URRTDEError(f"{kind}: {message}")
         if kind == "SafetyStopDuringUpload":
             stop_error = EmergencyStop if message.startswith("emergency") else ProtectiveStop
@@ -279,6 +292,38 @@ class URRobot:
     # ------------------------------------------------------------------ state
     def _status(self) -> Status:
         return self._status_from(self._request("state", timeout_s=self.command_timeout_s))
+
+    def _channel_status(self) -> Status:
+        """The state through the worker's status channel, which a thread of the worker answers beside the request
+        pipe: a path's upload or a command's handshake (the request pipe's answer can take seconds on a loaded
+        host) does not hold a state read up. The control interface's fields are those of the worker's last full
+        read while a request holds it; state() does not use them."""
+        with self._status_lock:
+            conn = self._status_conn
+            if conn is None:
+                raise ConnectionLost(f"{self.name}: not connected to {self.host}; call connect() first")
+            self._status_seq += 1
+            seq = self._status_seq
+            deadline = time.monotonic() + self.command_timeout_s
+            try:
+                conn.send(seq)
+                while True:  # an answer to an earlier read that timed out comes first: dropped
+                    left = deadline - time.monotonic()
+                    if left <= 0.0 or not conn.poll(left):
+                        raise DeviceTimeout(
+                            f"{self.name}: the ur-rtde worker for {self.host} did not answer a state read within "
+                            f"{self.command_timeout_s:.1f} s"
+                        )
+                    reply = conn.recv()
+                    if reply[1] == seq:
+                        break
+            except (EOFError, OSError) as err:
+                raise ConnectionLost(
+                    f"{self.name}: the ur-rtde worker for {self.host} ended during a state read; call connect() again"
+                ) from err
+        if reply[0] != "ok":
+            self._raise_reply("state", reply[2], reply[3])
+        return self._status_from(reply[2])
 
     def _status_from(self, raw: dict[str, Any]) -> Status:
         now = time.monotonic()
@@ -310,7 +355,7 @@ class URRobot:
         )
 
     def state(self) -> RobotState:
-        st = self._status()
+        st = self._channel_status()
         bits = st.safety_status_bits
         if st.emergency_stop:
             mode, message = RobotMode.EMERGENCY_STOP, f"emergency stop (safety mode {st.safety_mode})"
@@ -334,7 +379,7 @@ class URRobot:
         )
 
     def get_X_base_tool(self) -> FloatArray:
-        return self._status().X_base_tool
+        return self._channel_status().X_base_tool
 
     # ------------------------------------------------------------------ motion
     def move_linear(

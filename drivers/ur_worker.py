@@ -86,6 +86,14 @@ class Worker:
         self._stamp: float | None = None  # the controller's last RTDE timestamp seen here, and when it last changed
         self._stamp_changed = time.monotonic()
         self._heartbeat: threading.Thread | None = None
+        # the control interface's part of the last full state read (see receive_state)
+        self._control_view: dict[str, Any] = {
+            "control_connected": True,
+            "control_lost": "",
+            "control_ready": False,
+            "async_running": False,
+            "async_progress": 0,
+        }
 
     def op_connect(self) -> dict[str, Any]:
         rtde_receive, rtde_control, rtde_io, _ = import_ur_rtde()
@@ -155,11 +163,36 @@ class Worker:
                     control.kickWatchdog()
 
     def op_state(self) -> dict[str, Any]:
-        r, c = self.receive, self.control
+        receive = self._receive_state()
+        c, lost = self.control, self.control_lost
+        status = None if lost else c.getAsyncOperationProgressEx()
+        view = {
+            "control_connected": bool(lost) or c.isConnected(),
+            "control_lost": lost,
+            "control_ready": not lost and c.isProgramRunning(),
+            "async_running": status is not None and status.isAsyncOperationRunning(),
+            "async_progress": status.progress() if status is not None else 0,
+        }
+        self._control_view = view
+        return {**receive, **view}
+
+    def receive_state(self) -> dict[str, Any]:
+        """The state for the driver's status channel (:func:`_serve_status`), answered while a request holds the
+        control interface (a path's upload, a command's handshake): the receive interface's fields now; the
+        control interface's as of the last full read, or now when no request holds it."""
+        if self.lock.acquire(blocking=False):
+            try:
+                return self.op_state()
+            finally:
+                self.lock.release()
+        return {**self._receive_state(), **self._control_view}
+
+    def _receive_state(self) -> dict[str, Any]:
+        r = self.receive
+        if r is None:
+            raise ConnectionLost("not connected yet")
         if not r.isConnected():
             raise ConnectionLost("the RTDE receive connection closed")
-        lost = self.control_lost
-        status = None if lost else c.getAsyncOperationProgressEx()
         stamp = r.getTimestamp()
         return {
             "timestamp": stamp,
@@ -171,11 +204,6 @@ class Worker:
             "safety_status_bits": r.getSafetyStatusBits(),
             "runtime_state": r.getRuntimeState(),
             "digital_output_bits": r.getActualDigitalOutputBits(),
-            "control_connected": bool(lost) or c.isConnected(),
-            "control_lost": lost,
-            "control_ready": not lost and c.isProgramRunning(),
-            "async_running": status is not None and status.isAsyncOperationRunning(),
-            "async_progress": status.progress() if status is not None else 0,
         }
 
     def op_move_linear(self, pose: list[float], speed: float, accel: float) -> bool:
@@ -298,14 +326,40 @@ class Worker:
             control.stopScript()
 
 
-def worker_main(conn: Connection, host: str, dashboard_port: int, heartbeat_timeout_s: float | None) -> None:
-    """Entry point of the worker process: answer requests until told to close or the driver goes away.
+def _serve_status(conn: Connection, worker: Worker) -> None:
+    """The status channel: answer each request ``seq`` with ``("ok", seq, state)`` or ``("error", seq, kind,
+    message)`` from a thread of its own, so that a state read never waits behind a request on the main pipe (ur-rtde
+    releases the GIL in its calls; its constructors, in connect, do not)."""
+    while True:
+        try:
+            seq = conn.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            reply: tuple[Any, ...] = ("ok", seq, worker.receive_state())
+        except Exception as err:
+            reply = ("error", seq, type(err).__name__, str(err))
+        try:
+            conn.send(reply)
+        except (OSError, ValueError):
+            return
+
+
+def worker_main(
+    conn: Connection, status_conn: Connection, host: str, dashboard_port: int, heartbeat_timeout_s: float | None
+) -> None:
+    """Entry point of the worker process: answer requests until told to close or the driver goes away; state reads
+    on ``status_conn`` are answered beside them (:func:`_serve_status`).
 
     When the driver's process dies (even by SIGKILL) the pipe ends, this process exits and the heartbeat stops with
     it: the controller's watchdog then stops the program (arm stopped, arc output low)."""
     # Ctrl-C reaches the whole process group; the driver handles it (and stops the arm through this worker)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
+    # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     worker = Worker(host, dashboard_port, heartbeat_timeout_s)
+    threading.Thread(target=_serve_status, args=(status_conn, worker), name="ur-status", daemon=True).start()
     while True:
         try:
             op, args = conn.recv()
