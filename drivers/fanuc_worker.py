@@ -374,6 +374,9 @@ def main(fd: int) -> None:
 def worker_main(conn: Connection, settings: Settings) -> None:
     """Entry point of the I/O process: serve the driver until it says exit or its pipe ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the process group; the driver handles it
+    # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
+    # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     loop = asyncio.new_event_loop()
     asyncio.set_event_loop(loop)
     server = _Server(conn, settings)

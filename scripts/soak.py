@@ -146,6 +146,7 @@ class SoakResult:
     probe_id: int | None = None
     probe_error: str | None = None
     exit_code: int | None = None
+    exit_s: float | None = None
     arc_line: str | None = None
     rss_window: int = 0
     rss_floor_start: Sample | None = None
@@ -414,6 +415,7 @@ class DaemonSoak:
                 else:
                     self.fail(f"the SIGTERM probe job {self.result.probe_id} never switched the arc on")
         self.result.exit_code = self.daemon.stop()
+        self.result.exit_s = self.daemon.exit_s
         try:
             found = self.daemon.wait_line(r"arc output \d+ .*", timeout_s=5)
             self.result.arc_line = found.group(0)
@@ -608,7 +610,8 @@ def print_summary(result: SoakResult, out: TextIO = sys.stdout) -> None:
             f"  threads at job ends: min {min(x.threads for x in s)}, max {max(x.threads for x in s)}; when idle: "
             + ", ".join(f"{x.finished}: {x.threads}" for x in result.idle_samples)
         )
-    p(f"  SIGTERM: exit code {result.exit_code}, {result.arc_line!r}")
+    took = f" after {result.exit_s:.1f} s" if result.exit_s is not None else ""
+    p(f"  SIGTERM: exit code {result.exit_code}{took}, {result.arc_line!r}")
     if result.probe_id is not None:
         p(f"    probe job {result.probe_id}: {result.probe_error}")
     p(f"  failures: {len(result.failures)}")

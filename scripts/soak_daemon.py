@@ -37,6 +37,7 @@ class ServedDaemon:
             text=True,
         )
         self.lines: list[str] = []
+        self.exit_s: float | None = None
         self._new_line = threading.Condition()
         self._reader = threading.Thread(target=self._read, name="soak-daemon-output", daemon=True)
         self._reader.start()
@@ -82,14 +83,19 @@ class ServedDaemon:
         return int(fields["VmRSS"][0]) / 1024.0, int(fields["Threads"][0])
 
     def stop(self, timeout_s: float = 60.0) -> int:
-        """SIGTERM, then wait for the exit code (SIGKILL after ``timeout_s``: then the code is negative)."""
+        """SIGTERM, then wait for the exit code (after ``timeout_s`` SIGUSR1, so that the daemon's log shows where
+        each of its threads waits, then SIGKILL: the code is negative). :attr:`exit_s` says how long it took."""
+        t0 = time.monotonic()
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             try:
                 self.proc.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
+                self.proc.send_signal(signal.SIGUSR1)  # weldcell serve prints every thread's stack
+                time.sleep(2.0)
                 self.proc.kill()
                 self.proc.wait(timeout=10)
+        self.exit_s = time.monotonic() - t0
         self._reader.join(timeout=5)
         return int(self.proc.returncode)
 

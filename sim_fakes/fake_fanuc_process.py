@@ -39,6 +39,9 @@ def _serve(conn: Connection, host: str, port: int, heartbeat: HeartbeatProgram |
     """The child: start the fake, report its port, answer ``(method, args, kwargs)`` until ``("shutdown",)`` or
     until the parent goes away."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the parent; its handle stops this process
+    # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
+    # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         fake = FakeFanucController(host=host, port=port, heartbeat=heartbeat).start()
     except Exception as err:

@@ -2,7 +2,9 @@
 
 SIGTERM or Ctrl-C stops it safely: a running job's motion is stopped and the arc switched off first (the job ends
 in fault with that reason), queued jobs are cancelled, the arc output is read back (the last line says whether it
-reads off; exit code 1 if it still reads on), then the devices and the journal are closed.
+reads off; exit code 1 if it still reads on), then the devices and the journal are closed, and any child process
+still running (a simulator, a driver's worker) is ended within a bound. SIGUSR1 prints every thread's stack to
+stderr.
 
 ``--sim-faults`` (tests and soaks only) serves ``/sim/faults`` to switch faults of the simulators on and off; it is
 refused unless every device of the config is a simulator started by this process (see cell.daemon).
@@ -11,9 +13,13 @@ refused unless every device of the config is a simulator started by this process
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import logging
+import signal
 
-from cell.commands.stop_signals import StopSignals
+from cell.commands.stop_signals import StopSignals, end_child_processes
+
+logger = logging.getLogger(__name__)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -48,23 +54,40 @@ def run_serve(args: argparse.Namespace) -> int:
 
     if args.verbose < 2:
         logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    # `kill -USR1 <pid>` prints every thread's stack to stderr (a daemon that does not stop can say where it waits)
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     config = load_config(args.config)
     safety_limits(config)  # refuse a config without [safety] before starting anything
     if args.port is not None:
         config = config.model_copy(update={"daemon": config.daemon.model_copy(update={"port": args.port})})
+    on: bool | None = None
     with StopSignals() as signals:  # ignored while the devices start (the fake UR runs in a child process)
         daemon = Daemon(config, start_simulators=not args.no_sims, sim_faults=args.sim_faults)
-        signals.arm()
-        daemon.start()
-        host, port = daemon.address
-        print(f"weldcell serve: listening on http://{host}:{port} (journal {daemon.journal.path})", flush=True)
-        for record in daemon.interrupted:
-            print(f"weldcell serve: job {record.id} ({record.job_file}) was interrupted: not resumed", flush=True)
-        received = signals.wait()
-        print(f"weldcell serve: {received} received, stopping safely", flush=True)
-        daemon.shutdown(received)
-        arc = daemon.runner.arc_output
-        on = daemon.arc_on_at_exit
-        said = "could not be read back" if on is None else ("STILL READS ON" if on else "reads off")
-        print(f"weldcell serve: stopped; arc output {arc} {said}", flush=True)
+        received = "error"
+        try:
+            signals.arm()
+            daemon.start()
+            host, port = daemon.address
+            _say(f"weldcell serve: listening on http://{host}:{port} (journal {daemon.journal.path})")
+            for record in daemon.interrupted:
+                _say(f"weldcell serve: job {record.id} ({record.job_file}) was interrupted: not resumed")
+            received = signals.wait()
+            _say(f"weldcell serve: {received} received, stopping safely")
+        finally:  # whatever ended the wait, the motion stops and the arc goes off before the process ends
+            try:
+                daemon.shutdown(received)
+                on = daemon.arc_on_at_exit
+                said = "could not be read back" if on is None else ("STILL READS ON" if on else "reads off")
+                _say(f"weldcell serve: stopped; arc output {daemon.runner.arc_output} {said}")
+            finally:
+                end_child_processes()
     return 1 if on else 0
+
+
+def _say(line: str) -> None:
+    """Print a status line for whoever started the daemon. A reader that went away (a closed pipe) must not keep
+    the daemon from stopping safely: the line goes to the log instead."""
+    try:
+        print(line, flush=True)
+    except (OSError, ValueError):
+        logger.warning("%s (stdout is closed)", line)

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import logging
+import multiprocessing
 import signal
 import threading
 from types import FrameType, TracebackType
 from typing import Any
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+logger = logging.getLogger(__name__)
 
 
 class StopSignals:
@@ -45,3 +49,23 @@ class StopSignals:
     ) -> None:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
+
+
+def end_child_processes(timeout_s: float = 3.0) -> list[str]:
+    """End every multiprocessing child of this process still running, within a bound: terminate, wait up to
+    ``timeout_s``, then kill. Returns the names of those that had to be ended.
+
+    The devices' own close stops their processes; this is the bound behind it. At exit multiprocessing terminates
+    its daemonic children and then waits for each *without* a timeout, so one child that does not end there (it
+    ignores SIGTERM, or nobody closed its device) would keep a stopping service alive for ever."""
+    children = multiprocessing.active_children()
+    for child in children:
+        logger.warning("child process %s (pid %s) still running at exit: terminating it", child.name, child.pid)
+        child.terminate()
+    for child in children:
+        child.join(timeout_s)
+        if child.is_alive():
+            logger.error("child %s (pid %s) outlived SIGTERM by %.0f s: killing it", child.name, child.pid, timeout_s)
+            child.kill()
+            child.join(timeout_s)
+    return [child.name for child in children]

@@ -385,6 +385,9 @@ class FakeURServer:
 def _serve(conn: Connection, cfg: FakeURConfig) -> None:
     """Entry point of the fake's process."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the test run; its handle stops this process
+    # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
+    # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     logging.basicConfig(level=logging.WARNING)
     try:
         asyncio.run(FakeURServer(cfg, conn).run())

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 
 from cell.commands.stop_signals import SIGNALS, StopSignals
 
@@ -31,3 +32,25 @@ def test_wait_blocks_until_a_signal_arrives() -> None:
             assert stops.wait() == "SIGINT"
         finally:
             timer.cancel()
+
+
+def _ignore_sigterm_and_sleep() -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    time.sleep(60)
+
+
+def test_child_processes_still_running_at_exit_are_ended_within_the_bound() -> None:
+    # multiprocessing's own exit handler terminates such a child and then waits for it without a bound
+    import multiprocessing
+
+    from cell.commands.stop_signals import end_child_processes
+
+    ctx = multiprocessing.get_context("spawn")
+    child = ctx.Process(target=_ignore_sigterm_and_sleep, name="stubborn", daemon=True)
+    child.start()
+    time.sleep(1.0)  # it has set its handler
+    t0 = time.monotonic()
+    assert end_child_processes(timeout_s=0.5) == ["stubborn"]
+    assert not child.is_alive() and child.exitcode == -signal.SIGKILL
+    assert time.monotonic() - t0 < 2.0
+    assert end_child_processes(timeout_s=0.5) == []
