@@ -8,7 +8,9 @@ Why a worker process: ur-rtde's C++ calls hold the GIL while they wait, and seve
 "done" never comes from a hung controller). A thread cannot time such a call out, so every ur-rtde object lives in
 a child process and this driver talks to it over a pipe with a deadline on each request: when a deadline passes
 the child is killed and :class:`drivers.errors.DeviceTimeout` is raised; :meth:`URRobot.connect` starts a fresh one.
-What runs in the child lives in :mod:`drivers.ur_worker`.
+What runs in the child lives in :mod:`drivers.ur_worker`. :meth:`URRobot.state` and :meth:`URRobot.get_X_base_tool`
+use a second pipe to the worker, answered by a thread there, so that a state read does not wait behind a path's
+upload or a command's handshake on the first.
 
 Motions are sent asynchronously (``moveL(..., asynchronous=True)``) and followed by polling the RTDE state every
 controller cycle, so a protective stop (safety status bit 2), an emergency stop (bits 5-7), a lost connection or a
