@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.ur_worker import raise_own_priority
 from sim_fakes import rtde_wire as wire
 from sim_fakes.fake_ur.controller import Controller, FakeURConfig
 from sim_fakes.fake_ur.kinematics import SUPPORTED_FAULTS
@@ -388,6 +389,8 @@ def _serve(conn: Connection, cfg: FakeURConfig) -> None:
     # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
     # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    # it stands in for a controller that never misses a cycle: the same priority as the driver's worker, where allowed
+    raise_own_priority()
     logging.basicConfig(level=logging.WARNING)
     try:
         asyncio.run(FakeURServer(cfg, conn).run())
