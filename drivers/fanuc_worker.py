@@ -45,6 +45,7 @@ from drivers.errors import (
 )
 from drivers.fanuc_protocol import RMIStatus, instructions_for_path
 from drivers.fanuc_rmi import RMIClient
+from drivers.priority import raise_own_priority
 
 logger = logging.getLogger("drivers.fanuc")
 
@@ -377,6 +378,7 @@ def worker_main(conn: Connection, settings: Settings) -> None:
     # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
     # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    raise_own_priority()  # it writes the heartbeat register: before any thread starts, they inherit it
     loop = asyncio.new_event_loop()
     asyncio.set_event_loop(loop)
     server = _Server(conn, settings)

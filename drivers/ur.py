@@ -25,28 +25,13 @@ ur-rtde 1.6 always connects its RTDE interfaces to port 30004 and uploads its co
 the dashboard port (used by :meth:`URRobot.reset_faults` and :meth:`URRobot.unlock_protective_stop`) can differ from
 the standard.
 
-Recovering after a safety stop (:meth:`URRobot.reset_faults`, what an operator would do at the pendant) goes through
-the dashboard server with the commands ur-rtde's ``DashboardClient`` sends: ``close safety popup``; after an
-emergency stop (once its button is released) the arm is powered off: ``power on``, wait for robot mode IDLE,
-``brake release``, wait for RUNNING; after a protective stop ``unlock protective stop`` (a CB3 refuses it for 5 s
-after the stop: the driver asks again until it is accepted or its timeout passes). A safety stop ends the ur-rtde
-control script, so it is uploaded again before the arm counts as ready. A controller in a safety stop does not
-start a script, and ur-rtde waits for that start without a bound in ``moveL(path)`` (and fails its constructor
-after 5 s): :meth:`URRobot.connect` in a stop opens the control interface without uploading its script
-(``FLAG_NO_WAIT``, uploaded by ``reuploadScript`` once the stop is unlocked), and a stop that comes while a path's
-script is being uploaded ends :meth:`URRobot.stream_path` at once with :class:`ProtectiveStop`; the worker gives
-that control interface up (the state still comes from the receive interface) and the next motion or
-:meth:`URRobot.reset_faults` reconnects with a fresh worker. So the order of a recovery is: dashboard ``close
-safety popup``, ``unlock protective stop`` (again until 5 s after the stop), reconnect the control interface if
-it was given up, upload the control script and arm its watchdog.
-
-The controller-side watchdog (``heartbeat_timeout_s``, docs/controller-watchdogs.md): every control script this
-driver starts is told ``setWatchdog(1 / heartbeat_timeout_s)``, so the controller stops the program (the arm
-decelerates to a stop) when the host's heartbeat (``kickWatchdog``, sent by a thread of the worker process) has
-been missing for longer than that: a dropped link, a hung or killed host process. The installation's I/O setup
-drives the arc output low at every program stop. Uploading a path (``stream_path``) restarts the program, so the
-arm is held with the speed slider at 0 while the path's script starts, its watchdog is armed and the outputs the
-restart switched off are switched on again before the arm moves.
+Recovering after a safety stop (:meth:`URRobot.reset_faults`: dashboard ``close safety popup``, ``unlock protective
+stop`` again until a CB3 accepts it 5 s after the stop, ``power on`` and ``brake release`` after an emergency stop, a
+fresh worker if a stop during a path's upload made it give its control interface up, then the control script
+uploaded again and its watchdog armed) and the controller-side watchdog (``heartbeat_timeout_s``: every control
+script this driver starts is told ``setWatchdog(1 / heartbeat_timeout_s)``; a path's upload restarts the program, so
+the arm is held with the speed slider at 0 until the outputs the restart switched off are on again) are described,
+with what the integrator installs on the controller, in docs/controller-watchdogs.md.
 """
 
 from __future__ import annotations
@@ -73,7 +58,7 @@ from drivers.errors import (
     MotionTimeout,
     ProtectiveStop,
 )
-from drivers.protocols import FloatArray, RobotMode, RobotState
+from drivers.protocols import FloatArray, RobotState
 from drivers.ur_protocol import (
     DASHBOARD_PORT,
     REPLY_BRAKE_RELEASING,
@@ -87,11 +72,9 @@ from drivers.ur_protocol import (
     ROBOT_MODE_POWER_ON,
     ROBOT_MODE_RUNNING,
     RTDE_PORT,
-    SAFETY_BIT_FAULT,
-    SAFETY_BIT_VIOLATION,
 )
-from drivers.ur_worker import Status, import_ur_rtde, worker_main
-from perception.transforms import TransformError, X_from_ur_pose, check_X, rotation_angle_rad, ur_pose_from_X
+from drivers.ur_worker import Status, StatusChannel, import_ur_rtde, worker_main
+from perception.transforms import TransformError, check_X, rotation_angle_rad, ur_pose_from_X
 
 log = logging.getLogger(__name__)
 
@@ -170,9 +153,8 @@ class URRobot:
         self._proc: multiprocessing.process.BaseProcess | None = None
         self._conn: Connection | None = None
         self._lock = threading.RLock()
-        self._status_conn: Connection | None = None  # the worker's status channel (state(), get_X_base_tool())
+        self._channel: StatusChannel | None = None  # the worker's status channel (state(), get_X_base_tool())
         self._status_lock = threading.Lock()
-        self._status_seq = 0
         self._last_timestamp = math.nan
         self._last_change = 0.0
 
@@ -200,7 +182,7 @@ class URRobot:
             status_child.close()
             self._proc, self._conn = proc, parent
             with self._status_lock:
-                self._status_conn = status_parent
+                self._channel = StatusChannel(status_parent, f"{self.name}: the ur-rtde worker for {self.host}")
             log.debug("%s: connecting to %s (RTDE receive, control and IO interfaces)", self.name, self.host)
             try:
                 raw = self._request("connect", timeout_s=self.connect_timeout_s)
@@ -244,9 +226,9 @@ class URRobot:
         self._proc = self._conn = None
         if conn is not None:
             conn.close()
-        status_conn, self._status_conn = self._status_conn, None
-        if status_conn is not None:
-            status_conn.close()  # a state() waiting on it sees the channel end
+        channel, self._channel = self._channel, None
+        if channel is not None:
+            channel.close()  # a state() waiting on it sees the channel end
         if proc is not None:
             proc.join(grace_s)
             if proc.is_alive():
@@ -296,33 +278,13 @@ class URRobot:
         return self._status_from(self._request("state", timeout_s=self.command_timeout_s))
 
     def _channel_status(self) -> Status:
-        """The state through the worker's status channel, which a thread of the worker answers beside the request
-        pipe: a path's upload or a command's handshake (the request pipe's answer can take seconds on a loaded
-        host) does not hold a state read up. The control interface's fields are those of the worker's last full
-        read while a request holds it; state() does not use them."""
+        """The state through the worker's status channel (:class:`drivers.ur_worker.StatusChannel`): a path's
+        upload or a command's handshake on the request pipe does not hold it up."""
         with self._status_lock:
-            conn = self._status_conn
-            if conn is None:
+            channel = self._channel
+            if channel is None:
                 raise ConnectionLost(f"{self.name}: not connected to {self.host}; call connect() first")
-            self._status_seq += 1
-            seq = self._status_seq
-            deadline = time.monotonic() + self.command_timeout_s
-            try:
-                conn.send(seq)
-                while True:  # an answer to an earlier read that timed out comes first: dropped
-                    left = deadline - time.monotonic()
-                    if left <= 0.0 or not conn.poll(left):
-                        raise DeviceTimeout(
-                            f"{self.name}: the ur-rtde worker for {self.host} did not answer a state read within "
-                            f"{self.command_timeout_s:.1f} s"
-                        )
-                    reply = conn.recv()
-                    if reply[1] == seq:
-                        break
-            except (EOFError, OSError) as err:
-                raise ConnectionLost(
-                    f"{self.name}: the ur-rtde worker for {self.host} ended during a state read; call connect() again"
-                ) from err
+            reply = channel.read(self.command_timeout_s)
         if reply[0] != "ok":
             self._raise_reply("state", reply[2], reply[3])
         return self._status_from(reply[2])
@@ -342,43 +304,10 @@ class URRobot:
             )
         if not raw["control_connected"]:
             raise ConnectionLost(f"{self.name}: the RTDE control connection to {self.host} closed; call connect()")
-        return Status(
-            X_base_tool=X_from_ur_pose(raw["pose"]),
-            tcp_speed=tuple(raw["speed"]),
-            robot_mode=int(raw["robot_mode"]),
-            safety_mode=int(raw["safety_mode"]),
-            safety_status_bits=int(raw["safety_status_bits"]),
-            runtime_state=int(raw["runtime_state"]),
-            digital_output_bits=int(raw["digital_output_bits"]),
-            async_running=bool(raw["async_running"]),
-            async_progress=int(raw["async_progress"]),
-            control_ready=bool(raw["control_ready"]),
-            control_lost=str(raw["control_lost"]),
-        )
+        return Status.from_raw(raw)
 
     def state(self) -> RobotState:
-        st = self._channel_status()
-        bits = st.safety_status_bits
-        if st.emergency_stop:
-            mode, message = RobotMode.EMERGENCY_STOP, f"emergency stop (safety mode {st.safety_mode})"
-        elif st.protective_stop:
-            mode, message = RobotMode.PROTECTIVE_STOP, f"protective stop (safety mode {st.safety_mode})"
-        elif bits & ((1 << SAFETY_BIT_FAULT) | (1 << SAFETY_BIT_VIOLATION)):
-            mode, message = RobotMode.FAULT, f"safety fault or violation (safety status bits {bits:#x})"
-        elif st.robot_mode != ROBOT_MODE_RUNNING:
-            robot_mode = ROBOT_MODE_NAMES.get(st.robot_mode, str(st.robot_mode))
-            mode, message = RobotMode.FAULT, f"robot mode {robot_mode}: power the arm on and release its brakes"
-        else:
-            mode, message = (RobotMode.MOVING if st.moving else RobotMode.IDLE), ""
-        return RobotState(
-            mode=mode,
-            X_base_tool=st.X_base_tool,
-            is_moving=st.moving,
-            protective_stop=st.protective_stop,
-            emergency_stop=st.emergency_stop,
-            digital_outputs=tuple(bool(st.digital_output_bits >> i & 1) for i in range(8)),
-            message=message,
-        )
+        return self._channel_status().robot_state()
 
     def get_X_base_tool(self) -> FloatArray:
         return self._channel_status().X_base_tool

@@ -19,9 +19,19 @@ from multiprocessing.connection import Connection
 from types import ModuleType
 from typing import Any
 
-from drivers.errors import ConnectionLost, DriverNotInstalled
-from drivers.protocols import FloatArray
-from drivers.ur_protocol import ESTOP_MASK, PROTECTIVE_MASK, ROBOT_MODE_RUNNING, RUNTIME_PLAYING
+from drivers.errors import ConnectionLost, DeviceTimeout, DriverNotInstalled
+from drivers.priority import raise_own_priority
+from drivers.protocols import FloatArray, RobotMode, RobotState
+from drivers.ur_protocol import (
+    ESTOP_MASK,
+    PROTECTIVE_MASK,
+    ROBOT_MODE_NAMES,
+    ROBOT_MODE_RUNNING,
+    RUNTIME_PLAYING,
+    SAFETY_BIT_FAULT,
+    SAFETY_BIT_VIOLATION,
+)
+from perception.transforms import X_from_ur_pose
 
 INSTALL_HINT = "ur-rtde is not installed: pip install 'ur-rtde>=1.5.8,<2' (it provides rtde_control, rtde_receive)"
 
@@ -326,22 +336,36 @@ class Worker:
             control.stopScript()
 
 
-WORKER_NICE = -10
-"""The nice level the worker asks for (where the OS allows it: root or CAP_SYS_NICE)."""
+class StatusChannel:
+    """The driver's end of the status channel (:func:`_serve_status` answers at the other): a second pipe to the
+    worker, so that a state read never waits behind a request on the first (a path's upload, a command's
+    handshake: tenths of a second on a loaded host, which the job watchdog's status deadline took for a controller
+    that does not answer). ``what`` names the worker in errors."""
 
+    def __init__(self, conn: Connection, what: str) -> None:
+        self._conn = conn
+        self._what = what
+        self._seq = 0
 
-def raise_own_priority(nice: int = WORKER_NICE) -> bool:
-    """Ask the OS for a better scheduling priority (a lower nice level) for the calling thread and the threads it
-    starts afterwards; True when granted. For a process whose timing the cell's safety leans on: the worker sends
-    the controller's heartbeat (a kick every 50 ms against a 0.3 s watchdog) and reads its RTDE streams. On a loaded
-    host (a soak beside two test suites on two cores, load 8-10) a process of the default priority was not scheduled
-    for 0.3-0.6 s at times and the controller's watchdog stopped a healthy weld. Ordinary scheduling, a higher
-    weight only: never a real-time class, which a busy-waiting ur-rtde call could turn into a stuck core."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, min(nice, os.getpriority(os.PRIO_PROCESS, 0)))
-    except (OSError, AttributeError):  # not permitted (an ordinary user), or no such call on this OS
-        return False
-    return True
+    def read(self, timeout_s: float) -> tuple[Any, ...]:
+        """``("ok", seq, state)`` or ``("error", seq, kind, message)``; DeviceTimeout after ``timeout_s``,
+        ConnectionLost when the channel ended. Not thread-safe: the driver holds a lock around it."""
+        self._seq += 1
+        deadline = time.monotonic() + timeout_s
+        try:
+            self._conn.send(self._seq)
+            while True:  # an answer to an earlier read that timed out comes first: dropped
+                left = deadline - time.monotonic()
+                if left <= 0.0 or not self._conn.poll(left):
+                    raise DeviceTimeout(f"{self._what} did not answer a state read within {timeout_s:.1f} s")
+                reply: tuple[Any, ...] = self._conn.recv()
+                if reply[1] == self._seq:
+                    return reply
+        except (EOFError, OSError) as err:
+            raise ConnectionLost(f"{self._what} ended during a state read; call connect() again") from err
+
+    def close(self) -> None:
+        self._conn.close()
 
 
 def _serve_status(conn: Connection, worker: Worker) -> None:
@@ -411,6 +435,48 @@ class Status:
     async_progress: int
     control_ready: bool  # the control interface's own view of the script: running
     control_lost: str = ""  # why the worker gave its control interface up ('' while in use): reconnect first
+
+    @classmethod
+    def from_raw(cls, raw: dict[str, Any]) -> Status:
+        """The sample of the worker's answer to ``state`` (:meth:`Worker.op_state`)."""
+        return cls(
+            X_base_tool=X_from_ur_pose(raw["pose"]),
+            tcp_speed=tuple(raw["speed"]),
+            robot_mode=int(raw["robot_mode"]),
+            safety_mode=int(raw["safety_mode"]),
+            safety_status_bits=int(raw["safety_status_bits"]),
+            runtime_state=int(raw["runtime_state"]),
+            digital_output_bits=int(raw["digital_output_bits"]),
+            async_running=bool(raw["async_running"]),
+            async_progress=int(raw["async_progress"]),
+            control_ready=bool(raw["control_ready"]),
+            control_lost=str(raw["control_lost"]),
+        )
+
+    def robot_state(self) -> RobotState:
+        """What this sample says as the Robot protocol's state (the first of: emergency stop, protective stop, a
+        safety fault or violation, a robot mode other than RUNNING; else moving or idle)."""
+        bits = self.safety_status_bits
+        if self.emergency_stop:
+            mode, message = RobotMode.EMERGENCY_STOP, f"emergency stop (safety mode {self.safety_mode})"
+        elif self.protective_stop:
+            mode, message = RobotMode.PROTECTIVE_STOP, f"protective stop (safety mode {self.safety_mode})"
+        elif bits & ((1 << SAFETY_BIT_FAULT) | (1 << SAFETY_BIT_VIOLATION)):
+            mode, message = RobotMode.FAULT, f"safety fault or violation (safety status bits {bits:#x})"
+        elif self.robot_mode != ROBOT_MODE_RUNNING:
+            robot_mode = ROBOT_MODE_NAMES.get(self.robot_mode, str(self.robot_mode))
+            mode, message = RobotMode.FAULT, f"robot mode {robot_mode}: power the arm on and release its brakes"
+        else:
+            mode, message = (RobotMode.MOVING if self.moving else RobotMode.IDLE), ""
+        return RobotState(
+            mode=mode,
+            X_base_tool=self.X_base_tool,
+            is_moving=self.moving,
+            protective_stop=self.protective_stop,
+            emergency_stop=self.emergency_stop,
+            digital_outputs=tuple(bool(self.digital_output_bits >> i & 1) for i in range(8)),
+            message=message,
+        )
 
     @property
     def emergency_stop(self) -> bool:

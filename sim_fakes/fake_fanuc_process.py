@@ -14,6 +14,7 @@ import signal
 from multiprocessing.connection import Connection
 from typing import Any
 
+from drivers.priority import raise_own_priority
 from sim_fakes.fake_fanuc import FakeFanucController
 from sim_fakes.fanuc_program import HeartbeatProgram, InstructionRecord
 from sim_fakes.process_fake import ProcessFake
@@ -42,6 +43,7 @@ def _serve(conn: Connection, host: str, port: int, heartbeat: HeartbeatProgram |
     # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
     # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    raise_own_priority()  # it stands in for a controller that never misses a cycle (as the fake UR does)
     try:
         fake = FakeFanucController(host=host, port=port, heartbeat=heartbeat).start()
     except Exception as err:

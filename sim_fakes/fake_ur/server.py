@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.ur_worker import raise_own_priority
+from drivers.priority import raise_own_priority
 from sim_fakes import rtde_wire as wire
 from sim_fakes.fake_ur.controller import Controller, FakeURConfig
 from sim_fakes.fake_ur.kinematics import SUPPORTED_FAULTS
