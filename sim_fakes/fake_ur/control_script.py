@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from concurrent.futures import Future
 from typing import TYPE_CHECKING
 
 from drivers.ur_protocol import (
@@ -81,6 +82,8 @@ class ControlScript:
         self.async_wr_count = 0
         self.async_op_id = 0
         self.async_motion: Motion | None = None
+        # a move whose reach the controller's reach_check still computes: (result, waypoints, async, progress)
+        self.pending: tuple[Future[str], list[Waypoint], bool, bool] | None = None
 
     # registers as the script sees them (with its offsets)
     def in_int(self, ctl: Controller, i: int) -> int:
@@ -109,6 +112,17 @@ class ControlScript:
             self.started = True
             ctl.runtime_state = RUNTIME_PLAYING
             self.write_async(ctl, -1)  # reset_async_progress()
+        if self.pending is not None:
+            result, waypoints, asynchronous, progress = self.pending
+            if not result.done():
+                return  # the command stays unanswered (no "done") until its path is checked; the cycle goes on
+            self.pending = None
+            problem = result.result()
+            if problem:
+                ctl.halt_program(problem)
+            else:
+                self._start_move(ctl, waypoints, asynchronous, progress=progress)
+            return
         if self.blocking is not None:
             if self.blocking():
                 return
@@ -211,10 +225,17 @@ class ControlScript:
             ctl.halt_program(f"move with speed {bad[0].speed} m/s and acceleration {bad[0].accel} m/s^2")
             return
         segments = build_segments(ctl.p, ctl.R, waypoints)
+        if ctl.reach_check is not None:
+            self.pending = (ctl.reach_check(segments, ctl.q.copy()), waypoints, asynchronous, progress)
+            return
         problem = ctl.check_reachable(segments)
         if problem:
             ctl.halt_program(problem)
             return
+        self._start_move(ctl, waypoints, asynchronous, progress=progress)
+
+    def _start_move(self, ctl: Controller, waypoints: list[Waypoint], asynchronous: bool, *, progress: bool) -> None:
+        segments = build_segments(ctl.p, ctl.R, waypoints)  # from where the arm is now (it stood still meanwhile)
         self._kill_async(ctl)
         if asynchronous:
             self.write_async(ctl, 0)

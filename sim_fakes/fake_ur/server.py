@@ -6,6 +6,7 @@ Part of :mod:`sim_fakes.fake_ur` (its docstring describes the fake as a whole).
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import logging
 import re
@@ -127,6 +128,9 @@ class FakeURServer:
         self.cfg = cfg
         self.conn = conn
         self.ctl = Controller(cfg)
+        # paths are checked for reach in a thread, the control cycle streams on meanwhile (Controller.reach_check)
+        self._planner = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="fake-ur-reach")
+        self.ctl.reach_check = lambda segments, q: self._planner.submit(self.ctl.check_reachable, segments, q)
         self.servers: list[asyncio.base_events.Server] = []
         self.sessions: set[RtdeSession] = set()
         self.writers: set[asyncio.StreamWriter] = set()
@@ -174,6 +178,7 @@ class FakeURServer:
         loop.remove_reader(self.conn.fileno())
         self.close_servers()
         self.drop_clients()
+        self._planner.shutdown(wait=False, cancel_futures=True)
         await asyncio.sleep(0.05)  # let the client handlers see their connections end
 
     async def _cycle(self) -> None:
