@@ -118,6 +118,7 @@ class FakeFanucController(LoopThreadFake):
         self._registers: dict[int, float] = {}
         self._hb_seen: float = 0.0
         self._hb_seen_at = 0.0
+        self._cycle_s = 0.0  # the controller's running time: the sum of its motion ticks' steps, each at most 50 ms
         self._alarm: str | None = None  # a user alarm (UALM) latched until FRC_Reset
         self._events: list[dict[str, Any]] = []
 
@@ -463,11 +464,14 @@ class FakeFanucController(LoopThreadFake):
         return {"RegisterNumber": number, "RegisterValue": int(value) if value.is_integer() else value}
 
     def _watch_heartbeat(self) -> None:
-        """One scan of ``WC_HBEAT`` (docs/controller-watchdogs.md)."""
+        """One scan of ``WC_HBEAT`` (docs/controller-watchdogs.md), timed by the controller's running time: a real
+        controller takes each register write as it comes, while this fake's process, not scheduled for a while on
+        a loaded host, reads the host's writes of that while from its socket only after this scan; wall time would
+        count its own stall as the host's silence and stop a healthy weld (as the fake UR's RTDE watchdog did)."""
         hb = self._heartbeat
         if hb is None:
             return
-        now = time.monotonic() - self._t0
+        now = self._cycle_s
         value = self._registers.get(hb.register, 0.0)
         if value != self._hb_seen:
             self._hb_seen, self._hb_seen_at = value, now
@@ -632,6 +636,7 @@ class FakeFanucController(LoopThreadFake):
             last = now
 
     def _advance(self, dt: float) -> None:
+        self._cycle_s += min(dt, 0.05)
         self._watch_heartbeat()
         p_before = self._p_mm.copy()
         if self._running and not self._paused and self._servo_ready:
