@@ -31,7 +31,7 @@ from cell.daemon import Daemon
 from cell.errors import ConfigError
 from cell.factory import Simulators, build_cell, start_simulators
 from cell.journal import Journal
-from tests.cell.test_runner import EXAMPLES, REPO, cell_config, job_text
+from tests.cell.runner_rig import EXAMPLES, REPO, cell_config, job_text
 
 TOKEN = "s3cret-token-for-tests"
 

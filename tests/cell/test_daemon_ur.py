@@ -17,8 +17,8 @@ import pytest
 from cell.config import CellConfig
 from cell.factory import Simulators, start_simulators
 from sim_fakes.loopback import free_loopback_host
+from tests.cell.runner_rig import job_text
 from tests.cell.test_daemon import Served, config_from_example, job_state, request, wait_for
-from tests.cell.test_runner import job_text
 
 pytest.importorskip("rtde_control", reason="the UR driver needs ur-rtde")
 

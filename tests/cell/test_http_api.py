@@ -22,8 +22,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from cell.daemon import Daemon
+from tests.cell.runner_rig import cell_config, job_text
 from tests.cell.test_daemon import request
-from tests.cell.test_runner import cell_config, job_text
 
 REQUEST_TIMEOUT_S = 1.0
 MAX_BODY = 64 * 1024

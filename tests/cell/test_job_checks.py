@@ -13,7 +13,7 @@ from cell.errors import ConfigError
 from cell.job import job_from_text
 from cell.job_checks import MAX_DWELL_S, capture_pose, check_job, safety_limits
 from cell.planning import X_world_base
-from tests.cell.test_runner import cell_config, job_text
+from tests.cell.runner_rig import cell_config, job_text
 
 CONFIG = cell_config(Path("unused"), "sim-cell-fanuc.toml")  # the example with [safety] max_speed_m_s = 0.6
 LIMITS = safety_limits(CONFIG)

@@ -17,8 +17,8 @@ import pytest
 
 from cell.daemon import Daemon
 from cell.programs import fanuc_ls_program, urscript_program
+from tests.cell.runner_rig import BARE_TABLE_CAPTURE, cell_config, job_text
 from tests.cell.test_daemon import TOKEN, request, wait_for
-from tests.cell.test_runner import BARE_TABLE_CAPTURE, cell_config, job_text
 
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 

@@ -14,8 +14,8 @@ from cell.job_report import CYCLE_PHASES, JobData, job_report
 from cell.machine import CellState
 from cell.planning import WeldParams
 from perception.errors import NoSeamFound
+from tests.cell.runner_rig import job_text
 from tests.cell.test_operator_view import PATH
-from tests.cell.test_runner import job_text
 
 S = CellState
 

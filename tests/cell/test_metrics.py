@@ -94,8 +94,8 @@ def test_the_daemon_snapshot_is_read_at_every_scrape():
 @pytest.mark.timeout(60)
 def test_a_daemon_serves_its_job_durations_and_build_info_after_a_job(tmp_path):
     from cell.daemon import Daemon
+    from tests.cell.runner_rig import cell_config, job_text
     from tests.cell.test_daemon import finished_job, request, wait_for
-    from tests.cell.test_runner import cell_config, job_text
 
     config = cell_config(tmp_path, "sim-cell-fanuc.toml", daemon={"port": 0})
     with Daemon(config) as d:

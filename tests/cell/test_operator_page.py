@@ -25,8 +25,8 @@ import numpy as np
 import pytest
 
 from cell.daemon import Daemon
+from tests.cell.runner_rig import REPO, cell_config, job_text
 from tests.cell.test_daemon import TOKEN, request, wait_for
-from tests.cell.test_runner import REPO, cell_config, job_text
 
 CHROMIUM = os.environ.get("WELDCELL_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
 VIEWPORT = {"width": 1280, "height": 960}
@@ -86,6 +86,7 @@ def header_share(png: bytes, rgb: tuple[int, int, int]) -> float:
     return float(np.mean(np.all(np.abs(band - np.array(rgb)) <= 6, axis=2)))
 
 
+# long: one browser session, step by step, as an operator goes through it
 @needs_browser
 @pytest.mark.timeout(120)
 def test_the_page_drives_a_job_through_approval_welding_a_fault_and_its_acknowledgement(

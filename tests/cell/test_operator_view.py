@@ -16,7 +16,7 @@ from cell.operator_view import devices_view, job_view, pass_statuses, progress_v
 from cell.planning import MoveKind, SeamPass, Waypoint, WeldParams, WeldPath
 from cell.watchdog import DeviceReadings
 from drivers.protocols import RobotMode, RobotState, TrackStatus
-from tests.cell.test_runner import job_text
+from tests.cell.runner_rig import job_text
 
 S = CellState
 PARAMS = WeldParams(arc_on_dwell_s=0.5, arc_off_dwell_s=0.25)

@@ -9,7 +9,7 @@ import pytest
 
 from cell.cli import main
 from cell.journal import Journal
-from tests.cell.test_runner import BARE_TABLE_CAPTURE, EXAMPLES, job_text
+from tests.cell.runner_rig import BARE_TABLE_CAPTURE, EXAMPLES, job_text
 
 
 def fanuc_config(tmp_path: Path) -> Path:

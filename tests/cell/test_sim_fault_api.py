@@ -12,8 +12,8 @@ import pytest
 from cell.daemon import Daemon
 from cell.errors import ConfigError, WeldcellError
 from cell.sim_fault_api import SimFaultSwitch
+from tests.cell.runner_rig import cell_config
 from tests.cell.test_daemon import request
-from tests.cell.test_runner import cell_config
 
 
 class Handle:
