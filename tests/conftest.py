@@ -5,6 +5,8 @@ A test that writes a non-conforming seams.json on purpose puts it in a folder na
 
 from __future__ import annotations
 
+import signal
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -40,6 +42,20 @@ SLOW_FILES_FIRST = (
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     rank = {config.rootpath / path: k for k, path in enumerate(SLOW_FILES_FIRST)}
     items.sort(key=lambda item: rank.get(item.path, len(rank)))  # stable: the rest keep their order
+
+
+@pytest.fixture(autouse=True)
+def _stop_signal_handlers_are_left_as_found(request: pytest.FixtureRequest) -> Iterator[None]:
+    """A test that leaves SIGINT or SIGTERM ignored or rerouted in this process (an in-process command's signal
+    handling that did not unwind) would make the later tests of the same worker, and the commands they start as
+    child processes (which inherit an ignored signal), deaf to Ctrl-C: put back, and said in the warnings."""
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for sig, handler in before.items():
+        now = signal.getsignal(sig)
+        if now is not handler and now != handler:
+            signal.signal(sig, handler)
+            warnings.warn(f"{request.node.nodeid} left {sig.name} at {now!r}: put back", stacklevel=1)
 
 
 def _report(bad: dict[Path, list[str]]) -> str:

@@ -16,6 +16,7 @@ import argparse
 import faulthandler
 import logging
 import signal
+import sys
 
 from cell.commands.stop_signals import StopSignals, end_child_processes
 
@@ -47,6 +48,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_serve)
 
 
+def _register_stack_dump() -> None:
+    """`kill -USR1 <pid>` prints every thread's stack to stderr (a daemon that does not stop can say where it
+    waits); to the process's own stderr when ``sys.stderr`` is not a file (a caller that captures it)."""
+    stream = sys.stderr
+    try:
+        stream.fileno()
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is an OSError and a ValueError
+        stream = sys.__stderr__
+    try:
+        faulthandler.register(signal.SIGUSR1, file=stream, all_threads=True)
+    except (AttributeError, OSError, ValueError, RuntimeError) as e:  # no SIGUSR1 here, or no stderr at all
+        logging.getLogger(__name__).warning("no stack dump on SIGUSR1: %s", e)
+
+
 def run_serve(args: argparse.Namespace) -> int:
     from cell.config import load_config
     from cell.daemon import Daemon
@@ -54,8 +69,7 @@ def run_serve(args: argparse.Namespace) -> int:
 
     if args.verbose < 2:
         logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-    # `kill -USR1 <pid>` prints every thread's stack to stderr (a daemon that does not stop can say where it waits)
-    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    _register_stack_dump()
     config = load_config(args.config)
     safety_limits(config)  # refuse a config without [safety] before starting anything
     if args.port is not None:
