@@ -39,6 +39,14 @@ SLOW_FILES_FIRST = (
 )
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    # a suite started as a background job of a shell without job control inherits SIGINT ignored (POSIX), and so
+    # would every command the tests start: the Ctrl-C tests (the calibration wizard's, `weldcell calibrate`'s)
+    # need it delivered as at a terminal. In each xdist worker too (each runs this hook).
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     rank = {config.rootpath / path: k for k, path in enumerate(SLOW_FILES_FIRST)}
     items.sort(key=lambda item: rank.get(item.path, len(rank)))  # stable: the rest keep their order
