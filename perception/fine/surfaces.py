@@ -444,7 +444,7 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
             found = _try_cylinder(
                 q, normals.reshape(-1, 3)[idx], tol, len(surfaces), zc, spacing, 0.7, sp.min_pixels, sp
             )
-            if found is not None and _turns(found[0], q[found[1]], sp.cylinder_min_turn_rad):
+            if found is not None:
                 surfaces.append(found[0])
                 lab.reshape(-1)[idx[found[1]]] = found[0].label
             continue
@@ -569,7 +569,7 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
         tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
         found = _try_cylinder(q, normals.reshape(-1, 3)[idx], tol, len(new_surfaces), zc,
                               float(noise.spacing_m(zc)), 0.85, sp.min_pixels, sp)  # fmt: skip
-        if found is None or not _turns(found[0], q[found[1]], sp.cylinder_min_turn_rad):
+        if found is None:
             continue
         new_surfaces.append(found[0])
         lab.reshape(-1)[idx] = -1
