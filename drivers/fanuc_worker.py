@@ -25,7 +25,6 @@ import asyncio
 import contextlib
 import logging
 import os
-import signal
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -45,7 +44,7 @@ from drivers.errors import (
 )
 from drivers.fanuc_protocol import RMIStatus, instructions_for_path
 from drivers.fanuc_rmi import RMIClient
-from drivers.priority import raise_own_priority
+from drivers.priority import enter_io_process
 
 logger = logging.getLogger("drivers.fanuc")
 
@@ -374,11 +373,7 @@ def main(fd: int) -> None:
 
 def worker_main(conn: Connection, settings: Settings) -> None:
     """Entry point of the I/O process: serve the driver until it says exit or its pipe ends."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the process group; the driver handles it
-    # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
-    # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    raise_own_priority()  # it writes the heartbeat register: before any thread starts, they inherit it
+    enter_io_process()  # it writes the heartbeat register: before any thread starts, they inherit its priority
     loop = asyncio.new_event_loop()
     asyncio.set_event_loop(loop)
     server = _Server(conn, settings)

@@ -1,4 +1,5 @@
-"""Scheduling priority for the processes that carry a controller's timing (the drivers' I/O processes, the fakes).
+"""How the processes that carry a controller's timing (the drivers' I/O processes, the fakes) start: their stop
+signals and their scheduling priority.
 
 Units: nice levels (-20 best .. 19). Linux gives each thread its own nice level and a new thread the level of the
 thread that starts it, so the call belongs at the top of a process's entry point.
@@ -7,6 +8,7 @@ thread that starts it, so the call belongs at the top of a process's entry point
 from __future__ import annotations
 
 import os
+import signal
 
 IO_PROCESS_NICE = -10
 """The nice level the drivers' I/O processes ask for (where the OS allows it: root or CAP_SYS_NICE)."""
@@ -26,3 +28,14 @@ def raise_own_priority(nice: int = IO_PROCESS_NICE) -> bool:
     except (OSError, AttributeError):  # not permitted (an ordinary user), or no such call on this OS
         return False
     return True
+
+
+def enter_io_process(nice: int = IO_PROCESS_NICE) -> bool:
+    """The first call of such a process's entry point, before any thread starts: Ctrl-C ignored (it reaches the whole
+    process group; the parent handles it and stops this process through its handle), SIGTERM back to its default (a
+    parent that ignored it while starting this one, as ``weldcell serve`` does, passed that on across exec; its
+    terminate(), and multiprocessing's at exit, which then waits for the child without a bound, must end this
+    process), and :func:`raise_own_priority`. True when the priority was granted."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    return raise_own_priority(nice)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import os
-import signal
 import threading
 import time
 from collections.abc import Callable
@@ -20,7 +19,7 @@ from types import ModuleType
 from typing import Any
 
 from drivers.errors import ConnectionLost, DeviceTimeout, DriverNotInstalled
-from drivers.priority import raise_own_priority
+from drivers.priority import enter_io_process
 from drivers.protocols import FloatArray, RobotMode, RobotState
 from drivers.ur_protocol import (
     ESTOP_MASK,
@@ -395,12 +394,9 @@ def worker_main(
 
     When the driver's process dies (even by SIGKILL) the pipe ends, this process exits and the heartbeat stops with
     it: the controller's watchdog then stops the program (arm stopped, arc output low)."""
-    # Ctrl-C reaches the whole process group; the driver handles it (and stops the arm through this worker)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
-    # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    raise_own_priority()  # before any thread starts: they inherit it (the heartbeat, ur-rtde's receive threads)
+    # the driver handles Ctrl-C (and stops the arm through this worker); before any thread starts, they inherit the
+    # priority (the heartbeat, ur-rtde's receive threads)
+    enter_io_process()
     worker = Worker(host, dashboard_port, heartbeat_timeout_s)
     threading.Thread(target=_serve_status, args=(status_conn, worker), name="ur-status", daemon=True).start()
     while True:

@@ -10,11 +10,10 @@ look inside the fake still construct :class:`~sim_fakes.fake_fanuc.FakeFanucCont
 
 from __future__ import annotations
 
-import signal
 from multiprocessing.connection import Connection
 from typing import Any
 
-from drivers.priority import raise_own_priority
+from drivers.priority import enter_io_process
 from sim_fakes.fake_fanuc import FakeFanucController
 from sim_fakes.fanuc_program import HeartbeatProgram, InstructionRecord
 from sim_fakes.process_fake import ProcessFake
@@ -39,11 +38,7 @@ HANDLE_METHODS = frozenset(
 def _serve(conn: Connection, host: str, port: int, heartbeat: HeartbeatProgram | None) -> None:
     """The child: start the fake, report its port, answer ``(method, args, kwargs)`` until ``("shutdown",)`` or
     until the parent goes away."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the parent; its handle stops this process
-    # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
-    # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    raise_own_priority()  # it stands in for a controller that never misses a cycle (as the fake UR does)
+    enter_io_process()  # it stands in for a controller that never misses a cycle (as the fake UR does)
     try:
         fake = FakeFanucController(host=host, port=port, heartbeat=heartbeat).start()
     except Exception as err:

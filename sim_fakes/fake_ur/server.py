@@ -10,14 +10,13 @@ import concurrent.futures
 import contextlib
 import logging
 import re
-import signal
 import time
 from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
 
-from drivers.priority import raise_own_priority
+from drivers.priority import enter_io_process
 from sim_fakes import rtde_wire as wire
 from sim_fakes.fake_ur.controller import Controller, FakeURConfig
 from sim_fakes.fake_ur.kinematics import SUPPORTED_FAULTS
@@ -390,12 +389,8 @@ class FakeURServer:
 
 def _serve(conn: Connection, cfg: FakeURConfig) -> None:
     """Entry point of the fake's process."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the test run; its handle stops this process
-    # a parent that ignored SIGTERM while starting it (weldcell serve) passed that on across exec: its terminate()
-    # (and multiprocessing's at exit, which then waits for the child without a bound) must end this process
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     # it stands in for a controller that never misses a cycle: the same priority as the driver's worker, where allowed
-    raise_own_priority()
+    enter_io_process()
     logging.basicConfig(level=logging.WARNING)
     try:
         asyncio.run(FakeURServer(cfg, conn).run())

@@ -40,3 +40,23 @@ def test_a_better_level_is_granted_where_permitted_and_a_worse_one_is_never_take
     # asking for a worse level than the current one keeps the current one (the call only ever improves it)
     before, granted, after = _probe(3, 10)
     assert (before, granted, after) == (3, True, 3)
+
+
+ENTER = """
+import os, signal
+signal.signal(signal.SIGTERM, signal.SIG_IGN)  # as a parent that ignored it while starting this process passes on
+from drivers.priority import enter_io_process
+granted = enter_io_process()
+print(signal.getsignal(signal.SIGINT) == signal.SIG_IGN, signal.getsignal(signal.SIGTERM) == signal.SIG_DFL, granted,
+      os.getpriority(os.PRIO_PROCESS, 0))
+"""
+
+
+def test_an_io_process_leaves_ctrl_c_to_its_parent_ends_on_sigterm_and_asks_for_its_priority() -> None:
+    out = subprocess.run([sys.executable, "-c", ENTER], capture_output=True, text=True, check=True, timeout=60)
+    ignores_int, default_term, granted, nice = out.stdout.split()
+    assert (ignores_int, default_term) == ("True", "True")
+    if os.geteuid() == 0:
+        assert granted == "True" and int(nice) == IO_PROCESS_NICE
+    else:
+        assert granted == "False"

@@ -88,7 +88,7 @@ def _may_raise_priority() -> bool:
     granted: list[bool] = []
 
     def attempt() -> None:  # in a thread of its own: on Linux a thread's nice level is its own
-        from drivers.ur_worker import raise_own_priority
+        from drivers.priority import raise_own_priority
 
         granted.append(raise_own_priority(-10) and os.getpriority(os.PRIO_PROCESS, 0) == -10)
 
