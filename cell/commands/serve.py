@@ -59,7 +59,7 @@ def _register_stack_dump() -> None:
     try:
         faulthandler.register(signal.SIGUSR1, file=stream, all_threads=True)
     except (AttributeError, OSError, ValueError, RuntimeError) as e:  # no SIGUSR1 here, or no stderr at all
-        logging.getLogger(__name__).warning("no stack dump on SIGUSR1: %s", e)
+        logger.warning("no stack dump on SIGUSR1: %s", e)
 
 
 def run_serve(args: argparse.Namespace) -> int:
