@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -296,66 +297,88 @@ def segment_surfaces(
     p = np.asarray(points, dtype=np.float64)
     z = p[..., 2]
     sigma = noise.sigma_m(np.where(np.isfinite(z), z, 1.0))
-    w = z.shape[1]
     comp, counts = _components(p, planes, noise, sp)
 
     surfaces: list[Surface] = []
     labels = np.full(z.shape, -1, np.int32)
     order = np.argsort(comp.ravel(), kind="stable")
-    sorted_c = comp.ravel()[order]
-    starts = np.searchsorted(sorted_c, np.arange(len(counts)))
-    pn = planes.normal.reshape(-1, 3)
+    starts = np.searchsorted(comp.ravel()[order], np.arange(len(counts)))
     rng = np.random.default_rng(0)
-    sig_all = sigma.reshape(-1)
-    for c in np.flatnonzero(counts >= sp.min_pixels):
-        idx = order[starts[c] : starts[c] + counts[c]]
-        q = p.reshape(-1, 3)[idx]
-        zc = float(np.median(q[:, 2]))
-        tol = sp.inlier_sigma * sig_all[idx]  # per point: the noise grows with range
-        th = max(1, len(q) // 20000)  # fits on at most ~20k points; inliers are taken on all
-        nrm, d, rms = _fit_plane(q[::th])
-        for _ in range(3):
-            inl = np.abs(q[::th] @ nrm + d) <= tol[::th]
-            if inl.sum() < 10:
-                break
-            nrm, d, rms = _fit_plane(q[::th][inl])
-        # a face seen obliquely is noisier than the range alone says: its own residual scale, up to 3x
-        res = np.abs(q @ nrm + d)
-        scale = np.clip(1.4826 * np.median(res) / np.maximum(np.median(sig_all[idx]), 1e-9), 1.0, 3.0)
-        inl = res <= tol * scale
-        spacing_c = float(noise.spacing_m(zc))
-        if not _two_dimensional(q[::th], spacing_c, sp):
-            continue
-        if inl.mean() >= sp.plane_share:
-            lab = len(surfaces)
-            surfaces.append(Surface(lab, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc))
-            labels.reshape(-1)[idx[inl]] = lab
-            continue
-        found = _try_cylinder(q, pn[idx], tol, len(surfaces), zc, spacing_c, 0.6, sp.min_pixels, sp)
-        if found is not None:
-            cyl_surface, inl = found
-            surfaces.append(cyl_surface)
-            labels.reshape(-1)[idx[inl]] = cyl_surface.label
-            rest = np.flatnonzero(~inl)
-            if len(rest) >= sp.min_pixels:
-                for sub in _ransac_planes(q[rest], tol[rest], sp.min_pixels, rng, pixels=idx[rest], width=w):
-                    if _two_dimensional(q[rest][sub], spacing_c, sp):
-                        nrm, d, rms = _fit_plane(q[rest][sub])
-                        lab = len(surfaces)
-                        surfaces.append(Surface(lab, "plane", nrm, d, rms, len(sub), q[rest][sub].mean(axis=0), zc))
-                        labels.reshape(-1)[idx[rest][sub]] = lab
-            continue
-        # several planes joined across soft edges (a plate's top, its edge face and the table): split them
-        for sub in _ransac_planes(q, tol, sp.min_pixels, rng, pixels=idx, width=w):
-            if not _two_dimensional(q[sub], spacing_c, sp):
-                continue
-            nrm, d, rms = _fit_plane(q[sub])
-            lab = len(surfaces)
-            surfaces.append(Surface(lab, "plane", nrm, d, rms, len(sub), q[sub].mean(axis=0), zc))
-            labels.reshape(-1)[idx[sub]] = lab
+    queue = deque(order[starts[c] : starts[c] + counts[c]] for c in np.flatnonzero(counts >= sp.min_pixels))
+    while queue:
+        found, left = _fit_patch(p, queue.popleft(), planes.normal.reshape(-1, 3), sigma.reshape(-1), noise, sp, rng)
+        for s, members in found:
+            labels.reshape(-1)[members] = len(surfaces)
+            surfaces.append(replace(s, label=len(surfaces)))
+        queue.extend(left)  # after every component: the random stream of the others stays as it was
     labels, surfaces = _complete(p, labels, surfaces, planes.normal, sigma, noise, sp)
     labels, surfaces = split_parallel(p, labels, surfaces, planes.normal, noise, min_pixels=sp.min_pixels)
     return SurfaceSet(labels, factor, tuple(surfaces))
+
+
+def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: FloatArray, noise: NoiseModel,
+               sp: SurfaceParams, rng: np.random.Generator
+               ) -> tuple[list[tuple[Surface, NDArray[np.int64]]], list[NDArray[np.int64]]]:  # fmt: skip
+    """The surfaces of one patch (flat pixel indices ``idx`` of the work image): one plane, a cylinder and
+    the planes beside it, or several planes joined across soft edges; with their members, and the pieces
+    of the patch a single plane leaves out that are large enough to be surfaces of their own (a plate's top
+    joined to the table across its edge holds a few percent of the table's patch: within the plane's share
+    of outliers, but a face)."""
+    w = p.shape[1]
+    q = p.reshape(-1, 3)[idx]
+    zc = float(np.median(q[:, 2]))
+    tol = sp.inlier_sigma * sig_all[idx]  # per point: the noise grows with range
+    th = max(1, len(q) // 20000)  # fits on at most ~20k points; inliers are taken on all
+    nrm, d, rms = _fit_plane(q[::th])
+    for _ in range(3):
+        inl = np.abs(q[::th] @ nrm + d) <= tol[::th]
+        if inl.sum() < 10:
+            break
+        nrm, d, rms = _fit_plane(q[::th][inl])
+    # a face seen obliquely is noisier than the range alone says: its own residual scale, up to 3x
+    res = np.abs(q @ nrm + d)
+    scale = np.clip(1.4826 * np.median(res) / np.maximum(np.median(sig_all[idx]), 1e-9), 1.0, 3.0)
+    inl = res <= tol * scale
+    spacing_c = float(noise.spacing_m(zc))
+    if not _two_dimensional(q[::th], spacing_c, sp):
+        return [], []
+    if inl.mean() >= sp.plane_share:
+        s = Surface(-1, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc)
+        left = [idx[~inl][k] for k in _connected_pieces(idx[~inl], w, sp.min_pixels)] if (~inl).sum() else []
+        return [(s, idx[inl])], left
+    out: list[tuple[Surface, NDArray[np.int64]]] = []
+    rest = np.arange(len(q))
+    found = _try_cylinder(q, pn[idx], tol, -1, zc, spacing_c, 0.6, sp.min_pixels, sp)
+    if found is not None:
+        out.append((found[0], idx[found[1]]))
+        rest = np.flatnonzero(~found[1])
+        if len(rest) < sp.min_pixels:
+            return out, []
+    # several planes joined across soft edges (a plate's top, its edge face and the table), or the planes
+    # beside a cylinder: split them
+    for sub in _ransac_planes(q[rest], tol[rest], sp.min_pixels, rng, pixels=idx[rest], width=w):
+        if _two_dimensional(q[rest][sub], spacing_c, sp):
+            nrm, d, rms = _fit_plane(q[rest][sub])
+            out.append((Surface(-1, "plane", nrm, d, rms, len(sub), q[rest][sub].mean(axis=0), zc), idx[rest][sub]))
+    return out, []
+
+
+def _connected_pieces(pixels: NDArray[np.int64], width: int, min_size: int) -> list[NDArray[np.int64]]:
+    """Index sets (into ``pixels``, flat pixel indices) of the 8-connected pieces of at least ``min_size``."""
+    import cv2
+
+    if len(pixels) < min_size:
+        return []
+    ys, xs = np.divmod(pixels, width)
+    y0, x0 = ys.min(), xs.min()
+    m = np.zeros((ys.max() - y0 + 1, xs.max() - x0 + 1), np.uint8)
+    m[ys - y0, xs - x0] = 1
+    n, comp = cv2.connectedComponents(m, connectivity=8)
+    c = comp[ys - y0, xs - x0]
+    sizes = np.bincount(c, minlength=n)
+    order = np.argsort(c, kind="stable")
+    starts = np.searchsorted(c[order], np.arange(n + 1))
+    return [order[starts[k] : starts[k + 1]] for k in range(1, n) if sizes[k] >= min_size]
 
 
 def _complete(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], normals: FloatArray,

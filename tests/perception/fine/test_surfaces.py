@@ -150,3 +150,33 @@ def test_a_flat_face_with_rounded_edges_is_not_a_wide_cylinder_but_a_pipe_is() -
     pc[:, 2] += sigma * rng.standard_normal(len(pc))
     found = _try_cylinder(pc, nc, np.full(len(pc), 4.0 * sigma), 0, 0.5, spacing, 0.6, sp.min_pixels, sp)
     assert found is not None and found[0].radius == pytest.approx(rad, abs=1e-3)
+
+
+
+def test_a_plate_top_within_the_tables_share_of_outliers_is_handed_back_as_a_patch() -> None:
+    """One patch that is the table and a 5 mm plate's top joined across a ramp (seen from straight above at
+    0.9 m under 0.8 mm noise; the top holds 1.7% of the patch, within the 3% a plane may leave out): the
+    patch is the table's plane, and the top comes back as a patch of its own, whole, for a fit of its own."""
+    from perception.fine.noise import estimate_noise, local_planes
+    from perception.fine.surfaces import SurfaceParams, _fit_patch
+
+    h, w, f, z_table, top = 180, 320, 460.0, 0.900, 0.005
+    ys, xs = np.mgrid[0:h, 0:w].astype(float)
+    inside = np.minimum.reduce([xs - 140, 170 - xs, ys - 75, 105 - ys])  # >= 0: the top, 31 x 31 pixels
+    height = top * np.clip((inside + 4.0) / 4.0, 0.0, 1.0)
+    z = z_table - height + np.random.default_rng(3).normal(0.0, 0.0008, (h, w))
+    pts = np.dstack([(xs - w / 2) * z / f, (ys - h / 2) * z / f, z])
+    planes = local_planes(pts, window_px=7)
+    noise = estimate_noise(pts, planes)
+    idx = np.arange(h * w)
+    found, left = _fit_patch(pts, idx, planes.normal.reshape(-1, 3), noise.sigma_m(pts[..., 2]).reshape(-1), noise,
+                             SurfaceParams(), np.random.default_rng(0))  # fmt: skip
+    assert len(found) == 1
+    table, members = found[0]
+    assert table.kind == "plane" and abs(abs(table.offset) - z_table) < 1e-4 and abs(abs(table.normal[2]) - 1) < 1e-5
+    top_idx = np.flatnonzero((inside >= 0).ravel())
+    # the top's points within the table's tolerance (5 mm is 2.2 sigma beyond it: about 1.3%) stay with it
+    assert np.isin(top_idx, members).mean() < 0.03
+    # the rest of the top is one piece handed back (with the upper part of its ramp), and nothing else is
+    assert len(left) == 1, [len(k) for k in left]
+    assert np.isin(top_idx, left[0]).mean() > 0.97 and len(left[0]) < 1.5 * len(top_idx), len(left[0])
