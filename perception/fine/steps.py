@@ -30,6 +30,7 @@ class StepParams:
     min_length_m: float = 0.020
     band_m: float = 0.012
     max_incidence_rad: float = np.radians(75.0)
+    on_plane_sigma: float = 3.5  # a full-resolution point is on a plate within this many sigma of its plane
 
 
 def step_seams(
@@ -65,6 +66,10 @@ def step_seams(
             continue
         if up.label in support or low.label in support:
             continue  # a plate lying on the table is not lapped onto it
+        # the points are told apart as on the upper or the lower plate within +-3.5 sigma of each: planes
+        # closer than that cannot be told apart (a ghost layer of mixed pixels along a face's edge)
+        if h < 2.0 * sp.on_plane_sigma * float(noise.sigma_m(float(np.median(pu[:, 2])))):
+            continue
         n = low.normal
         c = pu.mean(axis=0)
         d = pu - c
@@ -113,8 +118,8 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     sig = noise.sigma_m(q[:, 2])
     r_low = q @ low.normal + low.offset
     r_up = q @ up.normal + up.offset
-    on_up = np.abs(r_up) <= 3.5 * sig
-    on_low = np.abs(r_low) <= 3.5 * sig
+    on_up = np.abs(r_up) <= sp.on_plane_sigma * sig
+    on_low = np.abs(r_low) <= sp.on_plane_sigma * sig
     on_face = (r_low > 0.3 * h) & (r_low < 0.7 * h) & ~on_up
     if on_up.sum() < 10 or on_low.sum() < 10:
         return None

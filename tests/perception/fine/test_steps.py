@@ -36,3 +36,43 @@ def test_a_lap_seen_towards_its_edge_face_gives_its_seam_at_the_foot_of_the_edge
 def test_a_lap_seen_from_behind_its_edge_gives_no_seam() -> None:
     res, seams = steps("lap_behind", "stereo")
     assert res.ground_truth == () and seams == []
+
+
+def _step_cloud(h: float, sigma: float, seed: int = 0):
+    """A plate ``h`` thick lying on another, seen from straight above at 0.7 m: the upper plate in the image's
+    top rows, its edge face (square to the plates, seen at about 72 degrees) and the lower plate below; full
+    resolution 1280 x 720 with ``sigma`` depth noise, and the edge's exact line on the lower plate."""
+    from perception.capture import CameraIntrinsics
+
+    intr = CameraIntrinsics(1280, 720, 920.0, 920.0, 640.0, 360.0)
+    z_low, z_up, y_edge = 0.70, 0.70 - h, -0.22
+    v, u = np.mgrid[0:720, 0:1280].astype(float)
+    dx, dy = (u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy
+    t_face = y_edge / np.minimum(dy, -1e-9)  # where each ray meets the edge face's plane
+    t = np.where(dy * z_up < y_edge, z_up, np.where(t_face <= z_low, t_face, z_low))
+    t = t + np.random.default_rng(seed).normal(0.0, sigma, t.shape)
+    full = np.dstack([dx * t, dy * t, t]).astype(np.float32)
+    return full, intr, np.array([[-1.0, y_edge, z_low], [1.0, y_edge, z_low]])
+
+
+@pytest.mark.parametrize(("h", "found"), [(0.006, True), (0.0028, False)])
+def test_a_step_is_claimed_only_where_its_plates_lie_apart_beyond_the_noise_of_both(h: float, found: bool) -> None:
+    """Points are told apart as on the upper or the lower plate within 3.5 sigma of each plane: a 6 mm step
+    under 0.45 mm noise is placed at the foot of its edge; at 2.8 mm (6.2 sigma) the two bands overlap (a
+    ghost layer of mixed pixels along a face's edge lies so) and no step is claimed."""
+    from perception.fine.noise import estimate_noise, local_planes
+    from perception.fine.surfaces import segment_surfaces
+    from perception.fine.types import NoiseModel
+
+    full, intr, gt = _step_cloud(h, 0.00045)
+    p = full[::2, ::2].astype(np.float64)
+    planes = local_planes(p, window_px=7)
+    nm = estimate_noise(p, planes)
+    surf = segment_surfaces(p, planes, nm, factor=2)
+    nm_full = NoiseModel(nm.sigma_1m_m, nm.floor_m, nm.pixel_angle_rad / 2)
+    seams = step_seams(p, surf, adjacent_pairs(surf, nm), nm, full, intr, nm_full, support=frozenset())
+    if not found:
+        assert seams == []
+        return
+    (s,) = seams
+    assert np.median(point_to_polyline_distance(s.points, gt)) < 3e-4, s.points
