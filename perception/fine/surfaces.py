@@ -470,6 +470,13 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
             if found is not None:
                 surfaces.append(found[0])
                 lab.reshape(-1)[idx[found[1]]] = found[0].label
+                continue
+            # several faces in one piece (a plate's top with the bands along its edges): their planes
+            for sub in _ransac_planes(q, tol, sp.min_pixels, np.random.default_rng(0), pixels=idx, width=p.shape[1]):
+                if _two_dimensional(q[sub], spacing, sp):
+                    nrm, d, rms = _fit_plane(q[sub])
+                    lab.reshape(-1)[idx[sub]] = len(surfaces)
+                    surfaces.append(Surface(len(surfaces), "plane", nrm, d, rms, len(sub), q[sub].mean(axis=0), zc))
             continue
         if inl.sum() < sp.narrow_min_pixels:
             continue

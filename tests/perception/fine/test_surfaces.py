@@ -180,3 +180,32 @@ def test_a_plate_top_within_the_tables_share_of_outliers_is_handed_back_as_a_pat
     # the rest of the top is one piece handed back (with the upper part of its ramp), and nothing else is
     assert len(left) == 1, [len(k) for k in left]
     assert np.isin(top_idx, left[0]).mean() > 0.97 and len(left[0]) < 1.5 * len(top_idx), len(left[0])
+
+
+def test_a_leftover_piece_holding_two_faces_gives_both_planes() -> None:
+    """What no surface took after the growth is fitted again: a piece that is two faces meeting at a fold (a
+    narrow plate's top and its edge face, with the band between them) is neither one plane nor a cylinder;
+    it gives the two planes, each with its exact normal, not nothing."""
+    from perception.fine.noise import estimate_noise, local_planes
+    from perception.fine.surfaces import SurfaceParams, _recover_narrow
+
+    h, w, f = 120, 160, 460.0
+    ys, xs = np.mgrid[0:h, 0:w].astype(float)
+    # a valley seen from above at 0.6 m: the planes z = 0.6 + 0.4 x and z = 0.6 - 0.6 x (21.8 and 31.0 degrees
+    # from the view axis, on either side), each ray meeting the nearer
+    u = (xs - w / 2) / f
+    z = np.minimum(0.6 / (1 - 0.4 * u), 0.6 / (1 + 0.6 * u))
+    z = z + np.random.default_rng(5).normal(0.0, 0.0002, z.shape)
+    pts = np.dstack([(xs - w / 2) * z / f, (ys - h / 2) * z / f, z])
+    planes = local_planes(pts, window_px=7)
+    noise = estimate_noise(pts, planes)
+    surfaces: list = []
+    labels = _recover_narrow(pts, np.full((h, w), -1, np.int32), surfaces, noise.sigma_m(pts[..., 2]), noise,
+                             SurfaceParams(), planes.normal)  # fmt: skip
+    assert len(surfaces) == 2 and all(s.kind == "plane" for s in surfaces)
+    want = [np.array([0.4, 0.0, -1.0]), np.array([-0.6, 0.0, -1.0])]
+    for s in surfaces:
+        ang = min(np.degrees(np.arccos(abs(s.normal @ n) / np.linalg.norm(n))) for n in want)
+        assert ang < 0.2, (s.normal, ang)
+    assert {int(np.sign(surfaces[k].normal[0])) for k in range(2)} == {1, -1}
+    assert (labels >= 0).mean() > 0.9
