@@ -239,11 +239,33 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     dens_side = float((along & (rel >= 0.5 * width + 0.001) & (rel <= 0.5 * width + 0.004)).sum()) / 0.003
     if dens_side <= 0 or dens_in > 0.5 * dens_side:
         return None
+    # seen obliquely, the gap shows the far plate's edge face: the rays that meet it within the noise of
+    # the top are taken for the plate, and those that meet it deeper cross the top's plane short of the edge,
+    # so both counts place that edge inside the gap. The face's own points, clearly behind the top and beside
+    # the estimate, stand at the edge (a square cut)
+    view_across = float(-c3 @ across) / float(np.linalg.norm(c3))
+    face = _face_in_gap(allp, c3, u, across, s, noise_full, (lo, hi), edge_l if view_across > 0 else edge_r)
+    if face is not None and abs(view_across) > np.sin(np.radians(10.0)):
+        edge_l, edge_r = (face, edge_r) if view_across > 0 else (edge_l, face)
+        centre, width = 0.5 * (edge_l + edge_r), edge_r - edge_l
     mid = c3 + centre * across
     pts_seam = np.array([mid + lo * u, mid + hi * u])
     nrm = np.tile(s.normal, (2, 1))
     return SeamCurve("linear", "butt", pts_seam, nrm, nrm, (s.label, s.label), int(near.sum()), s.rms_m,
                      gap_m=width)  # fmt: skip
+
+
+def _face_in_gap(allp: FloatArray, c3: FloatArray, u: FloatArray, across: FloatArray, s: Surface,
+                 noise_full: NoiseModel, span: tuple[float, float], edge: float) -> float | None:  # fmt: skip
+    """Where the edge face seen in a gap stands (offset along ``across``): the median offset of the points
+    within 1.5 mm of ``edge`` that lie clearly behind the plate's top (3 to 12 sigma) along the gap; None
+    with fewer than 10 such points."""
+    d = allp - c3
+    t, a = d @ u, d @ across
+    r = allp @ s.normal + s.offset
+    sig = float(noise_full.sigma_m(s.z_m))
+    m = (t >= span[0]) & (t <= span[1]) & (np.abs(a - edge) <= 0.0015) & (r < -3.0 * sig) & (r > -12.0 * sig)
+    return float(np.median(a[m])) if m.sum() >= 10 else None
 
 
 def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,

@@ -46,10 +46,12 @@ def pipe(radius: float = 0.04, *, view_scale: float = 1.0) -> Scene:
     return scene_of((base, cyl), eye=(-0.05 * view_scale, -0.34 * view_scale, 0.34 * view_scale))
 
 
-def butt(gap: float = 0.002) -> Scene:
+def butt(gap: float = 0.002, eye: tuple[float, float, float] = (-0.10, -0.25, 0.32)) -> Scene:
+    """Two 8 mm plates 120 x 200 mm with a ``gap`` between them along y, at x = 0; seen from ``eye`` (the
+    default: 17 degrees across the gap from its plates' normal)."""
     left = hull("left", box_corners(0.12, 0.20, 0.008), x=-0.06 - gap / 2)
     right = hull("right", box_corners(0.12, 0.20, 0.008), x=0.06 + gap / 2)
-    sc = scene_of((left, right), eye=(-0.10, -0.25, 0.32), target=(0.0, 0.0, 0.0))
+    sc = scene_of((left, right), eye=eye, target=(0.0, 0.0, 0.0))
     top = [int(np.argmax([f.normal[2] for f in part.hull_world.faces])) for part in (left, right)]  # type: ignore[union-attr]
     x = np.tile([-1.0, 0.0, 0.0], (2, 1))
     seam = SeamDef("butt", "linear", np.array([[0.0, -0.1, 0.008], [0.0, 0.1, 0.008]]), ((1, top[0]), (2, top[1])),
@@ -98,6 +100,7 @@ def v_groove(*, gap: float = 0.0, root: float = 0.0, near: bool = False) -> Scen
 @cache
 def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
     sc = {"tee": tee, "pipe": pipe, "thin_pipe_far": lambda: pipe(0.015, view_scale=1.8), "butt": butt,
+          "butt_oblique": lambda: butt(0.0015, eye=(-0.26, -0.12, 0.30)),
           "lap": lap, "lap_behind": lambda: lap(behind=True), "v_groove": v_groove,
           "v_groove_open": lambda: v_groove(gap=0.0016, root=0.001, near=True)}[name]()  # fmt: skip
     if noise == "stereo":

@@ -33,6 +33,23 @@ def test_a_2_mm_butt_gap_is_found_on_its_centre_line(noise: str) -> None:
     assert s.joint == "butt"
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_gap_seen_obliquely_is_centred_between_the_plates_edges_not_on_the_face_it_shows(seed: int) -> None:
+    """Seen 41 degrees across the gap, the far plate's edge face shows in it; the rays that meet the face
+    near the top pass for the plate and the deeper ones cross the top's plane short of the edge, so both
+    counts put that edge inside the gap (by about 2 sigma tan 41 degrees). The face's own points place it."""
+    res = rendered("butt_oblique", "stereo", seed)
+    p, _, nm, surf = work("butt_oblique", "stereo", seed)
+    sup = find_support(p, surf, nm)
+    seams = gap_seams(p, surf, adjacent_pairs(surf, nm), nm, support=sup)
+    seams += inner_gap_seams(res.capture.points_camera(), res.capture.intrinsics, surf, nm, support=sup)
+    (gt,) = res.ground_truth
+    (s,) = seams
+    samples = s.points[0] + np.linspace(0, 1, 50)[:, None] * (s.points[1] - s.points[0])
+    assert np.median(point_to_polyline_distance(samples, gt.points_camera)) < 1e-4
+    assert s.gap_m == pytest.approx(0.0015, abs=3e-4)
+
+
 def test_a_plate_without_a_gap_gives_none() -> None:
     res = rendered("tee", "stereo")
     p, _, nm, surf = work("tee", "stereo")
