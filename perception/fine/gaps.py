@@ -92,6 +92,11 @@ def gap_seams(
         cb = np.bincount(np.clip(((tb - lo) / gp.bin_m).astype(int), 0, nbins - 1), minlength=nbins)
         for s0, s1 in covered_runs((ca > 0) & (cb > 0), 4):
             t0, t1 = lo + s0 * gp.bin_m, lo + s1 * gp.bin_m
+            # the ends where both plates' facing points still are (the bins round them out by up to one)
+            in_a, in_b = ta[(ta >= t0) & (ta <= t1)], tb[(tb >= t0) & (tb <= t1)]
+            if len(in_a) and len(in_b):
+                t0 = max(t0, float(in_a.min()), float(in_b.min()))
+                t1 = min(t1, float(in_a.max()), float(in_b.max()))
             if t1 - t0 < gp.min_length_m:
                 continue
             base = c + mid * across
@@ -203,6 +208,11 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     near = (t_along >= lo) & (t_along <= hi) & (np.abs(a_off) <= gap_half + gp.side_m)
     left, right = near & (a_off < 0), near & (a_off > 0)
     if left.sum() < 10 or right.sum() < 10:
+        return None
+    # the gap runs on past the plates' ends where the table shows through: it ends where both plates do
+    lo = max(lo, float(t_along[left].min()), float(t_along[right].min()))
+    hi = min(hi, float(t_along[left].max()), float(t_along[right].max()))
+    if hi - lo < gp.min_length_m:
         return None
     bins = np.linspace(lo, hi, max(2, int((hi - lo) / 0.002)) + 1)
     hl = np.histogram(t_along[left], bins)[0] > 0

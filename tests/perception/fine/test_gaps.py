@@ -28,7 +28,9 @@ def test_a_2_mm_butt_gap_is_found_on_its_centre_line(noise: str) -> None:
     samples = s.points[0] + np.linspace(0, 1, 50)[:, None] * (s.points[1] - s.points[0])
     err = point_to_polyline_distance(samples, gt.points_camera)
     assert np.median(err) < 2e-4
-    assert err.max() < (3e-4 if noise == "none" else 1e-3)  # the ends come from 2 mm bins at the work image
+    # the ends where both plates' facing points are, not where the 2 mm bins round them out to (0.3 and 0.9 mm
+    # past the plates' ends before)
+    assert err.max() < (1.5e-4 if noise == "none" else 3e-4)
     assert s.gap_m == pytest.approx(0.002, abs=0.001)
     assert s.joint == "butt"
 
