@@ -18,9 +18,11 @@ def split_parallel(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surf
     narrow to break the growth between their tops) split in two. The common normal starts as the median
     of the pixels' local normals (one plane through both tops tilts; the tops' own normals do not), then
     the model is fitted alternately: the points split at the middle between the two groups' offsets along
-    the normal, the normal from the two groups' pooled scatter. It is kept when each group fits within the
-    noise (rms at most :data:`SPLIT_RMS_SHARE` of the one plane's), the groups lie at least six sigma apart
-    and each holds a tenth of the points: one plane's Gaussian noise split so lies about 1.6 sigma apart."""
+    the normal, the normal from the two groups' pooled scatter, starting from the best two-class split of
+    the heights along the median normal (a split at the median would cut the larger plate in two). It is
+    kept when each group fits within the noise (rms at most :data:`SPLIT_RMS_SHARE` of the one plane's), the
+    groups lie at least six sigma apart and each holds a tenth of the points: one plane's Gaussian noise
+    split so lies about 1.6 sigma apart."""
     flat = labels.reshape(-1)
     pts = p.reshape(-1, 3)
     out = list(surfaces)
@@ -38,7 +40,8 @@ def split_parallel(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surf
             continue
         n = np.median(np.where((local @ S.normal)[:, None] < 0, -local, local), axis=0)
         n /= max(float(np.linalg.norm(n)), 1e-12)
-        part = q @ n > np.median(q @ n)
+        h0 = q @ n
+        part = h0 > _two_class_threshold(h0)
         for _ in range(30):
             if part.sum() < min_pixels or (~part).sum() < min_pixels:
                 break
@@ -65,3 +68,16 @@ def split_parallel(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surf
                            float(np.median(q[part][:, 2]))))  # fmt: skip
         flat[idx[part]] = lab
     return labels, out
+
+
+def _two_class_threshold(h: FloatArray, bins: int = 256) -> float:
+    """The value splitting ``h`` into two classes of the largest between-class variance (Otsu's rule)."""
+    counts, edges = np.histogram(h, bins=bins)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    w0 = np.cumsum(counts).astype(np.float64)
+    w1 = w0[-1] - w0
+    s0 = np.cumsum(counts * centres)
+    m0 = s0 / np.maximum(w0, 1.0)
+    m1 = (s0[-1] - s0) / np.maximum(w1, 1.0)
+    between = w0 * w1 * (m0 - m1) ** 2
+    return float(edges[int(np.argmax(between[:-1])) + 1])

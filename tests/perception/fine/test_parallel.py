@@ -39,3 +39,26 @@ def test_two_parallel_tops_a_plate_apart_are_split_and_one_noisy_plane_is_not() 
             assert abs(float(upper.centroid @ lower.normal + lower.offset)) == pytest.approx(0.005, abs=2e-4)
             assert max(s.rms_m for s in out) < 1.2 * sigma
             assert np.count_nonzero(labels == upper.label) == np.count_nonzero(u > 0.02)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_thin_upper_plate_over_a_third_of_the_surface_is_split_at_its_true_height(seed: int) -> None:
+    """A 2.5 mm plate (8 sigma) over 30% of one grown surface: a first split at the median heights cuts the
+    larger lower plate in two, and alternating from it settled between the plates; the two-class split of the
+    heights starts on the right plates, 2.5 mm apart."""
+    from perception.fine.parallel import split_parallel
+    from perception.fine.surfaces import SurfaceParams
+    from perception.fine.types import NoiseModel
+
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.linspace(-0.1, 0.1, 120), np.linspace(-0.06, 0.06, 80))
+    sigma, upper_px = 0.0003, u > 0.04
+    noise = NoiseModel(sigma_1m_m=sigma / 0.64, floor_m=1e-5, pixel_angle_rad=0.0012)
+    p = np.stack([u, v, 0.8 - np.where(upper_px, 0.0025, 0.0) + rng.normal(0.0, sigma, u.shape)], axis=-1)
+    labels, surfaces = _one_surface_of(p)
+    normals = np.broadcast_to(np.array([0.0, 0.0, -1.0]), p.shape) + rng.normal(0.0, 0.01, p.shape)
+    labels, out = split_parallel(p, labels, surfaces, normals, noise, min_pixels=SurfaceParams().min_pixels)
+    assert len(out) == 2
+    lower, upper = sorted(out, key=lambda s: s.centroid[2], reverse=True)
+    assert abs(float(upper.centroid @ lower.normal + lower.offset)) == pytest.approx(0.0025, abs=2e-4)
+    assert np.mean((labels == upper.label) == upper_px) > 0.99
