@@ -312,7 +312,10 @@ def segment_surfaces(
             surfaces.append(replace(s, label=len(surfaces)))
         queue.extend(left)  # after every component: the random stream of the others stays as it was
     labels, surfaces = _complete(p, labels, surfaces, planes.normal, sigma, noise, sp)
+    n_before = len(surfaces)
     labels, surfaces = split_parallel(p, labels, surfaces, planes.normal, noise, min_pixels=sp.min_pixels)
+    if len(surfaces) > n_before:  # a split plate's part may be one plane with its neighbour (a strip by its edge)
+        labels, surfaces = _merge_coplanar(p, labels, surfaces, noise, sp)
     return SurfaceSet(labels, factor, tuple(surfaces))
 
 
@@ -682,9 +685,10 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
         if su.kind != "plane" or sv.kind != "plane" or float(su.normal @ sv.normal) < cos_m:
             continue
         tol = 3.0 * float(noise.sigma_m(max(su.z_m, sv.z_m)))
-        pu = sample(u)
-        pv = sample(v)
-        if np.median(np.abs(sv.residual(pu))) > tol or np.median(np.abs(su.residual(pv))) > tol:
+        # the larger piece's plane must hold the smaller's points: a narrow strip's own plane is tilted by
+        # its noise and, carried over the larger piece, leaves it (a strip of a plate along an edge)
+        big, small = (su, v) if su.n_points >= sv.n_points else (sv, u)
+        if np.median(np.abs(big.residual(sample(small)))) > tol:
             continue
         sets.join(u, v)
     roots = sorted({find(i) for i in range(len(surfaces))})

@@ -209,3 +209,29 @@ def test_a_leftover_piece_holding_two_faces_gives_both_planes() -> None:
         assert ang < 0.2, (s.normal, ang)
     assert {int(np.sign(surfaces[k].normal[0])) for k in range(2)} == {1, -1}
     assert (labels >= 0).mean() > 0.9
+
+
+def test_a_narrow_strip_of_a_plane_joins_it_even_when_its_own_plane_is_tilted() -> None:
+    """A plate seen at 0.6 m (0.4 mm noise) labelled as a broad piece and a strip 10 pixels wide along its
+    edge, the strip's own fit tilted by 1.2 degrees (as its noise tilts it): carried over the broad piece the
+    strip's plane leaves it by over 3 sigma, but the broad piece's plane holds the strip's points; one face."""
+    from perception.fine.surfaces import SurfaceParams, _fit_plane, _merge_coplanar
+    from perception.fine.types import NoiseModel, Surface
+
+    h, w, f = 120, 200, 460.0
+    ys, xs = np.mgrid[0:h, 0:w].astype(float)
+    z = 0.6 + np.random.default_rng(2).normal(0.0, 0.0004, (h, w))
+    pts = np.dstack([(xs - w / 2) * z / f, (ys - h / 2) * z / f, z])
+    labels = np.where(ys < 110, 0, 1).astype(np.int32)
+    n0, d0, r0 = _fit_plane(pts[labels == 0])
+    strip = pts[labels == 1]
+    tilt = np.radians(1.2)
+    n1 = np.array([0.0, np.sin(tilt), -np.cos(tilt)])  # turned about the strip's own line (x)
+    d1 = -float(n1 @ strip.mean(axis=0))
+    surfaces = [Surface(0, "plane", n0, d0, r0, int((labels == 0).sum()), pts[labels == 0].mean(axis=0), 0.6),
+                Surface(1, "plane", n1, d1, 0.0004, len(strip), strip.mean(axis=0), 0.6)]  # fmt: skip
+    noise = NoiseModel(sigma_1m_m=0.0004 / 0.36, floor_m=1e-5, pixel_angle_rad=1 / f)
+    assert np.median(np.abs(pts[labels == 0] @ n1 + d1)) > 3 * 0.0004  # the strip's plane leaves the broad piece
+    new_labels, merged = _merge_coplanar(pts, labels, surfaces, noise, SurfaceParams())
+    assert len(merged) == 1 and (new_labels == 0).all()
+    assert abs(abs(merged[0].normal[2]) - 1.0) < 1e-5 and abs(abs(merged[0].offset) - 0.6) < 1e-4
