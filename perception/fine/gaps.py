@@ -91,12 +91,8 @@ def gap_seams(
         ca = np.bincount(np.clip(((ta - lo) / gp.bin_m).astype(int), 0, nbins - 1), minlength=nbins)
         cb = np.bincount(np.clip(((tb - lo) / gp.bin_m).astype(int), 0, nbins - 1), minlength=nbins)
         for s0, s1 in covered_runs((ca > 0) & (cb > 0), 4):
-            t0, t1 = lo + s0 * gp.bin_m, lo + s1 * gp.bin_m
             # the ends where both plates' facing points still are (the bins round them out by up to one)
-            in_a, in_b = ta[(ta >= t0) & (ta <= t1)], tb[(tb >= t0) & (tb <= t1)]
-            if len(in_a) and len(in_b):
-                t0 = max(t0, float(in_a.min()), float(in_b.min()))
-                t1 = min(t1, float(in_a.max()), float(in_b.max()))
+            t0, t1 = _shared_span(ta, tb, lo + s0 * gp.bin_m, lo + s1 * gp.bin_m)
             if t1 - t0 < gp.min_length_m:
                 continue
             base = c + mid * across
@@ -107,6 +103,15 @@ def gap_seams(
                                  (A.label, B.label), int(ca[s0:s1].sum() + cb[s0:s1].sum()), max(A.rms_m, B.rms_m),
                                  gap_m=width))  # fmt: skip
     return out
+
+
+def _shared_span(ta: FloatArray, tb: FloatArray, t0: float, t1: float) -> tuple[float, float]:
+    """[t0, t1] narrowed to where both sides' positions ``ta`` and ``tb`` (along a gap) within it reach;
+    unchanged when either side has none there."""
+    in_a, in_b = ta[(ta >= t0) & (ta <= t1)], tb[(tb >= t0) & (tb <= t1)]
+    if not (len(in_a) and len(in_b)):
+        return t0, t1
+    return max(t0, float(in_a.min()), float(in_b.min())), min(t1, float(in_a.max()), float(in_b.max()))
 
 
 @dataclass(frozen=True)
@@ -210,8 +215,7 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     if left.sum() < 10 or right.sum() < 10:
         return None
     # the gap runs on past the plates' ends where the table shows through: it ends where both plates do
-    lo = max(lo, float(t_along[left].min()), float(t_along[right].min()))
-    hi = min(hi, float(t_along[left].max()), float(t_along[right].max()))
+    lo, hi = _shared_span(t_along[left], t_along[right], lo, hi)
     if hi - lo < gp.min_length_m:
         return None
     bins = np.linspace(lo, hi, max(2, int((hi - lo) / 0.002)) + 1)
