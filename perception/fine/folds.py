@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from perception.fine.cylinder import axis_basis
 from perception.fine.runs import covered_runs
-from perception.fine.surfaces import axis_basis
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
 
 

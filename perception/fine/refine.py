@@ -14,9 +14,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
+from perception.fine.cylinder import axis_basis, circle_across
 from perception.fine.folds import plane_line, ring_points
 from perception.fine.runs import covered_runs
-from perception.fine.surfaces import _fit_plane, axis_basis, circle_across
+from perception.fine.surfaces import _fit_plane
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
 
 COPY_SHARE = 0.25  # see _others_residual

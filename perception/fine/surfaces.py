@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from perception.fine.cylinder import axis_basis, fit_cylinder
 from perception.fine.groups import Groups
 from perception.fine.noise import LocalPlanes
 from perception.fine.parallel import split_parallel
@@ -78,22 +79,6 @@ def _robust_plane(p: FloatArray, tol: float) -> tuple[FloatArray, float, float, 
     return n, d, rms, keep
 
 
-def _largest_connected(sub: NDArray[np.int64], pixels: NDArray[np.int64], width: int) -> NDArray[np.int64]:
-    """The members of ``sub`` (indices into ``pixels``, flat pixel indices) in its largest 8-connected piece."""
-    import cv2
-
-    ys, xs = np.divmod(pixels[sub], width)
-    y0, x0 = ys.min(), xs.min()
-    m = np.zeros((ys.max() - y0 + 1, xs.max() - x0 + 1), np.uint8)
-    m[ys - y0, xs - x0] = 1
-    n, comp = cv2.connectedComponents(m, connectivity=8)
-    if n <= 2:
-        return sub
-    c = comp[ys - y0, xs - x0]
-    best = int(np.argmax(np.bincount(c, minlength=n)[1:])) + 1
-    return sub[c == best]
-
-
 def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.random.Generator, *,
                    pixels: NDArray[np.int64] | None, width: int, max_planes: int = 8,
                    trials: int = 150) -> list[NDArray[np.int64]]:  # fmt: skip
@@ -126,112 +111,13 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
         inl = left[np.abs(q[left] @ n2 + d2) <= tol[left]]
         if len(inl) < min_points:
             break
-        piece = inl if pixels is None else _largest_connected(inl, pixels, width)
+        piece = inl if pixels is None else inl[max(_connected_pieces(pixels[inl], width, 1), key=len)]
         if len(piece) >= min_points:
             out.append(piece)
             left = np.setdiff1d(left, piece, assume_unique=True)
             continue
         left = np.setdiff1d(left, inl, assume_unique=True)
     return out
-
-
-def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatArray, float, float] | None:
-    """Axis, a centre on it, radius and RMS of a cylinder through (N, 3) points with (N, 3) normals, or None.
-
-    Start: the axis is perpendicular to every normal (the normals' scatter has no component along it) and
-    the centre and radius come from an algebraic circle fit of the points projected across it. Then a
-    robust least-squares fit of the radial distances over axis, centre and radius (the window normals are
-    blurred near the cylinder's outline and its fold with a plate, so the start's axis tilts a little).
-    """
-    from scipy.optimize import least_squares
-
-    ok = np.all(np.isfinite(normals), axis=1)
-    if ok.sum() < 20:
-        return None
-    nm = normals[ok]
-    w, _v = np.linalg.eigh(nm.T @ nm / len(nm))
-    if w[1] < 0.02:  # normals hardly spread: a plane, not a cylinder
-        return None
-    # the axis: the direction most normals are perpendicular to (pairs of normals propose it; a cap's or a
-    # plate's normals, parallel to the axis, would pull a plain eigenvector off it)
-    rng = np.random.default_rng(0)
-    i = rng.integers(0, len(nm), (200, 2))
-    cand = np.cross(nm[i[:, 0]], nm[i[:, 1]])
-    norm = np.linalg.norm(cand, axis=1)
-    cand = cand[norm > 0.2] / norm[norm > 0.2, None]
-    if len(cand) == 0:
-        return None
-    votes = (np.abs(nm[:: max(1, len(nm) // 2000)] @ cand.T) < 0.1).sum(axis=0)
-    axis = cand[int(np.argmax(votes))]
-    perp = np.abs(nm @ axis) < 0.15
-    if perp.sum() >= 20:
-        _w2, v2 = np.linalg.eigh(nm[perp].T @ nm[perp] / perp.sum())
-        axis = v2[:, 0]
-    start = circle_across(p[ok][perp] if perp.sum() >= 20 else p, axis)
-    if start is None:
-        return None
-    centre, r = start
-    e1, e2 = axis_basis(axis)
-    q = p[:: max(1, len(p) // 4000)]
-    scale = max(r, 1e-3)
-
-    def resid(x: FloatArray) -> FloatArray:
-        a = axis + x[0] * e1 + x[1] * e2
-        a /= np.linalg.norm(a)
-        c = centre + x[2] * e1 + x[3] * e2
-        d = q - c
-        radial = d - np.outer(d @ a, a)
-        return np.asarray(np.linalg.norm(radial, axis=1) - x[4])
-
-    def jac(x: FloatArray) -> FloatArray:
-        # r = |d - (d.a) a| - R with d = q - c: along the unit radial n, dr/dc = -n and dr/da = -(d.a) n
-        # (n is perpendicular to a), and a moves by (I - a a^T) e / |b| per unit of its two parameters
-        b = axis + x[0] * e1 + x[1] * e2
-        nb = float(np.linalg.norm(b))
-        a = b / nb
-        d = q - (centre + x[2] * e1 + x[3] * e2)
-        da = d @ a
-        radial = d - np.outer(da, a)
-        n = radial / np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-12)
-        n1, n2 = n @ e1, n @ e2
-        return np.column_stack([-da * n1 / nb, -da * n2 / nb, -n1, -n2, -np.ones(len(q))])
-
-    r0 = resid(np.array([0.0, 0.0, 0.0, 0.0, r]))
-    q = q[np.abs(r0) <= np.percentile(np.abs(r0), 70)]  # the start's worst 30% (other faces) sit out
-    sig0 = float(np.median(np.abs(resid(np.array([0.0, 0.0, 0.0, 0.0, r]))))) + 1e-6
-    sol = least_squares(resid, np.array([0.0, 0.0, 0.0, 0.0, r]), jac=jac, loss="soft_l1", f_scale=max(sig0, 1e-4),
-                        x_scale=np.array([0.05, 0.05, scale, scale, scale]), ftol=1e-6, xtol=1e-6)  # fmt: skip
-    x = sol.x
-    a = axis + x[0] * e1 + x[1] * e2
-    a /= np.linalg.norm(a)
-    c = centre + x[2] * e1 + x[3] * e2
-    r = float(x[4])
-    if r <= 0:
-        return None
-    d = p - c
-    res = np.linalg.norm(d - np.outer(d @ a, a), axis=1) - r
-    c = c + float(np.mean(d @ a)) * a
-    return a, c, r, float(np.sqrt(np.mean(res**2)))
-
-
-def axis_basis(axis: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Two unit vectors (e1, e2) that make a right-handed frame with the unit ``axis`` (e1 x e2 = axis)."""
-    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(axis, e1)
-
-
-def circle_across(p: FloatArray, axis: FloatArray) -> tuple[FloatArray, float] | None:
-    """Centre (on the plane across ``axis`` through the origin) and radius of an algebraic circle fit."""
-    e1, e2 = axis_basis(axis)
-    x, y = p @ e1, p @ e2
-    A = np.column_stack([x, y, np.ones_like(x)])
-    sol, *_ = np.linalg.lstsq(A, x * x + y * y, rcond=None)
-    cx, cy = sol[0] / 2, sol[1] / 2
-    r2 = sol[2] + cx * cx + cy * cy
-    if r2 <= 0:
-        return None
-    return cx * e1 + cy * e2, float(np.sqrt(r2))
 
 
 def _shift(a: NDArray, dy: int, dx: int, fill: int | float) -> NDArray:
@@ -347,8 +233,8 @@ def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: F
         return [], []
     if inl.mean() >= sp.plane_share:
         s = Surface(-1, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc)
-        left = [idx[~inl][k] for k in _connected_pieces(idx[~inl], w, sp.min_pixels)] if (~inl).sum() else []
-        return [(s, idx[inl])], left
+        out_px = idx[~inl]
+        return [(s, idx[inl])], [out_px[k] for k in _connected_pieces(out_px, w, sp.min_pixels)]
     out: list[tuple[Surface, NDArray[np.int64]]] = []
     rest = np.arange(len(q))
     found = _try_cylinder(q, pn[idx], tol, -1, zc, spacing_c, 0.6, sp.min_pixels, sp)
@@ -359,11 +245,19 @@ def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: F
             return out, []
     # several planes joined across soft edges (a plate's top, its edge face and the table), or the planes
     # beside a cylinder: split them
-    for sub in _ransac_planes(q[rest], tol[rest], sp.min_pixels, rng, pixels=idx[rest], width=w):
-        if _two_dimensional(q[rest][sub], spacing_c, sp):
-            nrm, d, rms = _fit_plane(q[rest][sub])
-            out.append((Surface(-1, "plane", nrm, d, rms, len(sub), q[rest][sub].mean(axis=0), zc), idx[rest][sub]))
-    return out, []
+    return out + _planes_of(q[rest], idx[rest], tol[rest], w, zc, spacing_c, sp, rng), []
+
+
+def _planes_of(q: FloatArray, idx: NDArray[np.int64], tol: FloatArray, width: int, zc: float, spacing: float,
+               sp: SurfaceParams, rng: np.random.Generator) -> list[tuple[Surface, NDArray[np.int64]]]:  # fmt: skip
+    """The planes found one after another in the points ``q`` of a piece (flat pixel indices ``idx``), each
+    its largest connected piece and two-dimensional, unlabelled, with their members."""
+    out: list[tuple[Surface, NDArray[np.int64]]] = []
+    for sub in _ransac_planes(q, tol, sp.min_pixels, rng, pixels=idx, width=width):
+        if _two_dimensional(q[sub], spacing, sp):
+            nrm, d, rms = _fit_plane(q[sub])
+            out.append((Surface(-1, "plane", nrm, d, rms, len(sub), q[sub].mean(axis=0), zc), idx[sub]))
+    return out
 
 
 def _connected_pieces(pixels: NDArray[np.int64], width: int, min_size: int) -> list[NDArray[np.int64]]:
@@ -475,11 +369,9 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
                 lab.reshape(-1)[idx[found[1]]] = found[0].label
                 continue
             # several faces in one piece (a plate's top with the bands along its edges): their planes
-            for sub in _ransac_planes(q, tol, sp.min_pixels, np.random.default_rng(0), pixels=idx, width=p.shape[1]):
-                if _two_dimensional(q[sub], spacing, sp):
-                    nrm, d, rms = _fit_plane(q[sub])
-                    lab.reshape(-1)[idx[sub]] = len(surfaces)
-                    surfaces.append(Surface(len(surfaces), "plane", nrm, d, rms, len(sub), q[sub].mean(axis=0), zc))
+            for plane, members in _planes_of(q, idx, tol, p.shape[1], zc, spacing, sp, np.random.default_rng(0)):
+                lab.reshape(-1)[members] = len(surfaces)
+                surfaces.append(replace(plane, label=len(surfaces)))
             continue
         if inl.sum() < sp.narrow_min_pixels:
             continue

@@ -1,0 +1,107 @@
+"""A cylinder fitted to points with their normals: the axis from the normals, the centre and radius from an
+algebraic circle fit across it, then a robust least-squares fit of the radial distances."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from perception.fine.types import FloatArray
+
+
+def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatArray, float, float] | None:
+    """Axis, a centre on it, radius and RMS of a cylinder through (N, 3) points with (N, 3) normals, or None.
+
+    Start: the axis is perpendicular to every normal (the normals' scatter has no component along it) and
+    the centre and radius come from an algebraic circle fit of the points projected across it. Then a
+    robust least-squares fit of the radial distances over axis, centre and radius (the window normals are
+    blurred near the cylinder's outline and its fold with a plate, so the start's axis tilts a little).
+    """
+    from scipy.optimize import least_squares
+
+    ok = np.all(np.isfinite(normals), axis=1)
+    if ok.sum() < 20:
+        return None
+    nm = normals[ok]
+    w, _v = np.linalg.eigh(nm.T @ nm / len(nm))
+    if w[1] < 0.02:  # normals hardly spread: a plane, not a cylinder
+        return None
+    # the axis: the direction most normals are perpendicular to (pairs of normals propose it; a cap's or a
+    # plate's normals, parallel to the axis, would pull a plain eigenvector off it)
+    rng = np.random.default_rng(0)
+    i = rng.integers(0, len(nm), (200, 2))
+    cand = np.cross(nm[i[:, 0]], nm[i[:, 1]])
+    norm = np.linalg.norm(cand, axis=1)
+    cand = cand[norm > 0.2] / norm[norm > 0.2, None]
+    if len(cand) == 0:
+        return None
+    votes = (np.abs(nm[:: max(1, len(nm) // 2000)] @ cand.T) < 0.1).sum(axis=0)
+    axis = cand[int(np.argmax(votes))]
+    perp = np.abs(nm @ axis) < 0.15
+    if perp.sum() >= 20:
+        _w2, v2 = np.linalg.eigh(nm[perp].T @ nm[perp] / perp.sum())
+        axis = v2[:, 0]
+    start = circle_across(p[ok][perp] if perp.sum() >= 20 else p, axis)
+    if start is None:
+        return None
+    centre, r = start
+    e1, e2 = axis_basis(axis)
+    q = p[:: max(1, len(p) // 4000)]
+    scale = max(r, 1e-3)
+
+    def resid(x: FloatArray) -> FloatArray:
+        a = axis + x[0] * e1 + x[1] * e2
+        a /= np.linalg.norm(a)
+        c = centre + x[2] * e1 + x[3] * e2
+        d = q - c
+        radial = d - np.outer(d @ a, a)
+        return np.asarray(np.linalg.norm(radial, axis=1) - x[4])
+
+    def jac(x: FloatArray) -> FloatArray:
+        # r = |d - (d.a) a| - R with d = q - c: along the unit radial n, dr/dc = -n and dr/da = -(d.a) n
+        # (n is perpendicular to a), and a moves by (I - a a^T) e / |b| per unit of its two parameters
+        b = axis + x[0] * e1 + x[1] * e2
+        nb = float(np.linalg.norm(b))
+        a = b / nb
+        d = q - (centre + x[2] * e1 + x[3] * e2)
+        da = d @ a
+        radial = d - np.outer(da, a)
+        n = radial / np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-12)
+        n1, n2 = n @ e1, n @ e2
+        return np.column_stack([-da * n1 / nb, -da * n2 / nb, -n1, -n2, -np.ones(len(q))])
+
+    r0 = resid(np.array([0.0, 0.0, 0.0, 0.0, r]))
+    q = q[np.abs(r0) <= np.percentile(np.abs(r0), 70)]  # the start's worst 30% (other faces) sit out
+    sig0 = float(np.median(np.abs(resid(np.array([0.0, 0.0, 0.0, 0.0, r]))))) + 1e-6
+    sol = least_squares(resid, np.array([0.0, 0.0, 0.0, 0.0, r]), jac=jac, loss="soft_l1", f_scale=max(sig0, 1e-4),
+                        x_scale=np.array([0.05, 0.05, scale, scale, scale]), ftol=1e-6, xtol=1e-6)  # fmt: skip
+    x = sol.x
+    a = axis + x[0] * e1 + x[1] * e2
+    a /= np.linalg.norm(a)
+    c = centre + x[2] * e1 + x[3] * e2
+    r = float(x[4])
+    if r <= 0:
+        return None
+    d = p - c
+    res = np.linalg.norm(d - np.outer(d @ a, a), axis=1) - r
+    c = c + float(np.mean(d @ a)) * a
+    return a, c, r, float(np.sqrt(np.mean(res**2)))
+
+
+def axis_basis(axis: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Two unit vectors (e1, e2) that make a right-handed frame with the unit ``axis`` (e1 x e2 = axis)."""
+    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(axis, e1)
+
+
+def circle_across(p: FloatArray, axis: FloatArray) -> tuple[FloatArray, float] | None:
+    """Centre (on the plane across ``axis`` through the origin) and radius of an algebraic circle fit."""
+    e1, e2 = axis_basis(axis)
+    x, y = p @ e1, p @ e2
+    A = np.column_stack([x, y, np.ones_like(x)])
+    sol, *_ = np.linalg.lstsq(A, x * x + y * y, rcond=None)
+    cx, cy = sol[0] / 2, sol[1] / 2
+    r2 = sol[2] + cx * cx + cy * cy
+    if r2 <= 0:
+        return None
+    return cx * e1 + cy * e2, float(np.sqrt(r2))
