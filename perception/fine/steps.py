@@ -66,8 +66,8 @@ def step_seams(
             continue
         if up.label in support or low.label in support:
             continue  # a plate lying on the table is not lapped onto it
-        # the points are told apart as on the upper or the lower plate within +-3.5 sigma of each: planes
-        # closer than that cannot be told apart (a ghost layer of mixed pixels along a face's edge)
+        # the points are told apart as on the upper or the lower plate within on_plane_sigma of each plane:
+        # planes closer than both bands cannot be told apart (a ghost layer of mixed pixels along an edge)
         if h < 2.0 * sp.on_plane_sigma * float(noise.sigma_m(float(np.median(pu[:, 2])))):
             continue
         n = low.normal
