@@ -1,8 +1,11 @@
 """Seams refitted on full-resolution points: both surfaces refitted near the seam, intersected again.
 
 Near a seam each full-resolution point goes to the surface it lies on (within the noise, on that surface's
-side of the seam); each surface is refitted on its points within ``band_m`` of the seam, and the seam is
-their new intersection. Where neither surface reaches the intersection (an open root: a V-groove's root gap
+side of the seam); each plane is refitted on its points within ``band_m`` of the seam and, beyond the band,
+on its own segmented work-resolution points out to ``face_reach_m`` (weighted by the area each stands
+for), and the seam is their new intersection. A depth sensor's low-frequency error (a stereo camera's
+correlated disparity noise) tilts a plane fitted on a narrow band; the whole face averages it out.
+Where neither surface reaches the intersection (an open root: a V-groove's root gap
 seen from above), the seam is the middle of the two surfaces' facing edges instead.
 """
 
@@ -26,6 +29,7 @@ COPY_SHARE = 0.25  # see _others_residual
 @dataclass(frozen=True)
 class RefineParams:
     band_m: float = 0.020
+    face_reach_m: float = 0.100  # beyond the band, a plane's fit takes its own surface's points this far
     inlier_sigma: float = 3.5
     corner_sigma: float = 3.0  # the fits leave out points this many sigma (plus a spacing) from the corner
     iterations: int = 3
@@ -112,7 +116,9 @@ def refine_seams(
             out.append(s)  # gaps and steps are placed at full resolution by their own steps
         elif s.kind == "linear" and A.kind == "plane" and B.kind == "plane":
             others = _others_residual(q, px, surfaces, s.surfaces, noise_full)
-            out.append(_refine_line(s, q, others, A, B, noise_full, rp))
+            beyond = _face_points(full, intr, surfaces, s.points, rp.face_reach_m)
+            out.append(_refine_line(s, q, others, A, B, noise_full, rp, beyond=beyond,
+                                    weight_beyond=float(surfaces.factor**2)))
         elif s.kind == "curved":
             out.append(_refine_ring(s, q, A, B, noise_full, rp))
         else:
@@ -120,8 +126,47 @@ def refine_seams(
     return out, used
 
 
+def _face_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet, curve: FloatArray,
+                 reach_m: float) -> tuple[FloatArray, NDArray[np.int32]]:  # fmt: skip
+    """The full-resolution points at the work-resolution pixels of any segmented surface beside ``curve``
+    (within its image box grown by ``reach_m``, between its ends), less a pixel along each surface's
+    boundary (a face is rounded or blurred at its edges), and their labels. Fragments of one face that the
+    segmentation left apart are all among them."""
+    f = surfaces.factor
+    h, w = surfaces.labels.shape
+    uv = intr.project(curve) / f
+    z = float(np.median(curve[:, 2]))
+    m = int(np.ceil(reach_m * intr.fx / f / max(z, 1e-3))) + 2
+    c0, c1 = int(max(np.floor(uv[:, 0].min()) - m, 0)), int(min(np.ceil(uv[:, 0].max()) + m + 1, w))
+    r0, r1 = int(max(np.floor(uv[:, 1].min()) - m, 0)), int(min(np.ceil(uv[:, 1].max()) + m + 1, h))
+    if c0 >= c1 or r0 >= r1:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
+    lab = np.pad(surfaces.labels[r0:r1, c0:c1], 1, mode="edge")
+    inner = lab[1:-1, 1:-1]
+    interior = (inner >= 0) & (lab[:-2, 1:-1] == inner) & (lab[2:, 1:-1] == inner)
+    interior &= (lab[1:-1, :-2] == inner) & (lab[1:-1, 2:] == inner)
+    rr, cc = np.nonzero(interior)
+    q = np.asarray(full[(rr + r0) * f, (cc + c0) * f], dtype=np.float64)
+    chord = curve[-1] - curve[0]
+    length = float(np.linalg.norm(chord))
+    along = (q - curve[0]) @ (chord / max(length, 1e-9))
+    ok = np.isfinite(q[:, 2]) & (along >= 0.0) & (along <= length)  # beside the seam, not past its ends
+    return q[ok], inner[rr[ok], cc[ok]]
+
+
+def _fit_plane_weighted(p: FloatArray, w: FloatArray) -> tuple[FloatArray, float]:
+    """Weighted least-squares plane of (N, 3) points: unit normal (towards the camera) and offset."""
+    c = (w[:, None] * p).sum(axis=0) / w.sum()
+    d = p - c
+    _, v = np.linalg.eigh((w[:, None] * d).T @ d)
+    n = v[:, 0] if v[:, 0] @ c <= 0 else -v[:, 0]
+    return n, -float(n @ c)
+
+
 def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B: Surface, noise: NoiseModel,
-                 rp: RefineParams) -> SeamCurve:  # fmt: skip
+                 rp: RefineParams, *, beyond: tuple[FloatArray, NDArray[np.int32]] | None = None,
+                 weight_beyond: float = 1.0) -> SeamCurve:  # fmt: skip
+    """The seam of planes A and B refitted on the points ``q`` near it and on ``beyond`` (labelled, weighted)."""
     p0, p1 = s.points[0], s.points[-1]
     length = float(np.linalg.norm(p1 - p0))
     u = (p1 - p0) / length
@@ -133,6 +178,8 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     q, t, others = q[inside], t[inside], others[inside]
     if len(q) < 20:
         return s
+    far, far_lab = (np.zeros((0, 3)), np.zeros(0, dtype=np.int32)) if beyond is None else beyond
+    sig_far = noise.sigma_m(far[:, 2])
     sig = noise.sigma_m(q[:, 2])
     spacing = noise.spacing_m(q[:, 2])
     a, b = A, B
@@ -164,12 +211,9 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         on_b &= _short_of_far_edge(db, on_b, margin, rp.band_m)
         if on_a.sum() < 10 or on_b.sum() < 10:
             return s
-        na, _, _ = _fit_plane(q[on_a])
-        nb, _, _ = _fit_plane(q[on_b])
-        na = na if na @ A.normal > 0 else -na
-        nb = nb if nb @ B.normal > 0 else -nb
-        a = replace(a, normal=na, offset=-float(na @ q[on_a].mean(axis=0)))
-        b = replace(b, normal=nb, offset=-float(nb @ q[on_b].mean(axis=0)))
+        fa, fb = _beyond_band(far, far_lab, sig_far, (a, b), (A.label, B.label), line0, (va, vb), rp)
+        a = _refit(a, A, q[on_a], fa, weight_beyond)
+        b = _refit(b, B, q[on_b], fb, weight_beyond)
         line = plane_line(a, b, 0.5 * (p0 + p1), along=u)
         if line is None:
             return s
@@ -199,6 +243,39 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
                                                 (q[on_b] @ b.normal + b.offset) ** 2]))))  # fmt: skip
     return replace(s, points=ends, normals_a=np.tile(a.normal, (2, 1)), normals_b=np.tile(b.normal, (2, 1)),
                    support=int(on_a.sum() + on_b.sum()), rms_m=rms, gap_m=gap)  # fmt: skip
+
+
+def _beyond_band(far: FloatArray, labels: NDArray[np.int32], sig: FloatArray, planes: tuple[Surface, Surface],
+                 own: tuple[int, int], line0: FloatArray, across: tuple[FloatArray, FloatArray],
+                 rp: RefineParams) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+    """Beyond the band, each face's points: those of the face and of its fragments, on its side of the line,
+    within the noise of its current plane and nearer it than the other face's."""
+    ra, rb = (np.abs(S.residual(far)) for S in planes)
+    out = []
+    for r_own, r_other, label, v in ((ra, rb, own[0], across[0]), (rb, ra, own[1], across[1])):
+        keep = _fragments(labels, r_own, sig, label) & ((far - line0) @ v > rp.band_m)
+        out.append(far[keep & (r_own <= rp.inlier_sigma * sig) & (r_own <= r_other)])
+    return out[0], out[1]
+
+
+def _fragments(labels: NDArray[np.int32], res: FloatArray, sig: FloatArray, own: int) -> NDArray[np.bool_]:
+    """Per point: whether its surface is ``own`` or a fragment of the same face (most of its points lie
+    within the noise of the face's current plane: median |residual| under 1.5 sigma)."""
+    out = labels == own
+    for k in np.unique(labels):
+        m = labels == k
+        if k != own and float(np.median(res[m] / sig[m])) < 1.5:
+            out |= m
+    return out
+
+
+def _refit(S: Surface, S0: Surface, near: FloatArray, far: FloatArray, weight_far: float) -> Surface:
+    """``S`` refitted on ``near`` (weight 1) and ``far`` (weight ``weight_far``), normal on ``S0``'s side."""
+    pts = np.concatenate([near, far])
+    n, off = _fit_plane_weighted(pts, np.concatenate([np.ones(len(near)), np.full(len(far), weight_far)]))
+    if n @ S0.normal < 0:
+        n, off = -n, -off
+    return replace(S, normal=n, offset=off)
 
 
 def _root_edges(q: FloatArray, others: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray, vb: FloatArray,
@@ -304,9 +381,20 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
     lo, hi = min(t0, t1) - rp.end_slack_m, max(t0, t1) + rp.end_slack_m
     nb = max(1, int(np.ceil((hi - lo) / rp.end_bin_m)))
 
+    inner = slice(int((min(t0, t1) - lo) / rp.end_bin_m), int((max(t0, t1) - lo) / rp.end_bin_m))
+
     def cover(t: FloatArray) -> NDArray[np.bool_]:
         k = np.floor((t[(t >= lo) & (t < hi)] - lo) / rp.end_bin_m).astype(int)
-        return np.bincount(np.clip(k, 0, nb - 1), minlength=nb) >= 2
+        count = np.bincount(np.clip(k, 0, nb - 1), minlength=nb)
+        # a face seen obliquely has few points near the line: its bins are widened until each is expected
+        # to hold four of them where the face is, so that its random holes are not taken for its end
+        seen = count[inner][count[inner] > 0]
+        per_bin = float(np.median(seen)) if seen.size else 0.0
+        need = 4.0 / max(per_bin, 0.5)
+        width = min(2 * int(np.ceil((need - 1.0) / 2.0)) + 1, 7)  # the smallest odd width (centred) holding four
+        if width > 1:
+            count = np.convolve(count, np.ones(width, dtype=np.int64), mode="same")
+        return count >= 2
 
     both = cover(ta) & cover(tb)
     runs = covered_runs(both, int(rp.end_hole_m / rp.end_bin_m))
@@ -315,6 +403,8 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
     r0, r1 = max(runs, key=lambda r: r[1] - r[0])
     ta_r = ta[(ta >= lo + r0 * rp.end_bin_m) & (ta < lo + r1 * rp.end_bin_m)]
     tb_r = tb[(tb >= lo + r0 * rp.end_bin_m) & (tb < lo + r1 * rp.end_bin_m)]
+    if ta_r.size == 0 or tb_r.size == 0:
+        return None
     s0 = max(float(ta_r.min()), float(tb_r.min()))
     s1 = min(float(ta_r.max()), float(tb_r.max()))
     if s1 - s0 < 0.005:
