@@ -19,11 +19,13 @@ from numpy.typing import NDArray
 from perception.capture import CameraIntrinsics
 from perception.fine.cylinder import axis_basis, circle_across
 from perception.fine.folds import plane_line, ring_points
+from perception.fine.root import open_root
 from perception.fine.runs import covered_runs
 from perception.fine.surfaces import _fit_plane
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
 
-COPY_SHARE = 0.25  # see _others_residual
+COPY_SIGMA = 1.5  # see _others_residual
+ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
 
 
 @dataclass(frozen=True)
@@ -67,24 +69,23 @@ def _others_residual(q: FloatArray, px: NDArray[np.int64], surfaces: SurfaceSet,
     """Per point, the smallest |residual| to any other segmented surface present in the points' box (inf where
     there is none): a point another surface explains better than either of the pair's (the plate's top face
     beyond a bevel's convex edge, the floor seen through a root gap) does not belong in their fits. A surface
-    that explains better a good part of what the pair explains within the noise is a near-copy of one of
-    its faces (a fragment the segmentation left apart), not another surface, and is not counted: choosing
-    between two near-copies of a face would bias its fit."""
+    whose own points here lie within the noise of one of the pair's faces (median |residual| under
+    COPY_SIGMA) is a fragment of that face the segmentation left apart, not another surface, and is not
+    counted: choosing between two near-copies of a face would bias its fit. (A fragment's own plane, fitted
+    on a few noisy pixels, can be tilted far from the face's; its points are not.)"""
     f = surfaces.factor
     h, w = surfaces.labels.shape
     lab = surfaces.labels[np.minimum(px[:, 0] // f, h - 1), np.minimum(px[:, 1] // f, w - 1)]
     ra, rb = (np.abs(surfaces.surfaces[i].residual(q)) for i in pair)
     sig = noise.sigma_m(q[:, 2])
-    own = [(ra <= rb) & (ra <= 4.0 * sig), (rb < ra) & (rb <= 4.0 * sig)]  # what each face explains
-    r_pair = np.minimum(ra, rb)
     best = np.full(len(q), np.inf)
     for k in np.unique(lab):
         if k < 0 or k in pair or k >= len(surfaces.surfaces):
             continue
-        r = np.abs(surfaces.surfaces[int(k)].residual(q))
-        if any(np.count_nonzero(m & (r < r_pair)) > COPY_SHARE * np.count_nonzero(m) for m in own):
+        mine = lab == k
+        if min(float(np.median(ra[mine] / sig[mine])), float(np.median(rb[mine] / sig[mine]))) < COPY_SIGMA:
             continue
-        best = np.minimum(best, r)
+        best = np.minimum(best, np.abs(surfaces.surfaces[int(k)].residual(q)))
     return best
 
 
@@ -229,12 +230,9 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     if all_a.sum() < 10 or all_b.sum() < 10:
         return s
     gap = 0.0
-    edges = None if s.joint != "v_groove" else _root_edges(q, others, line0, u, va, vb, a, b, sig, spacing, (p0, p1),
-                        max_reach_m=min(float(np.median(da[all_a])), float(np.median(db[all_b]))), rp=rp)  # fmt: skip
-    if edges is not None:
-        edge_a, edge_b = line0 + edges[0] * va, line0 + edges[1] * vb
-        gap = float(np.linalg.norm(edge_b - edge_a))
-        line0 = 0.5 * (edge_a + edge_b)
+    if s.joint == "v_groove":
+        reach = min(float(np.median(da[all_a])), float(np.median(db[all_b])))
+        line0, gap = _root_line(q, sig, line0, u, (va, vb), (a, b), (p0, p1), reach)
     ends = _supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
                            noise, rp)  # fmt: skip
     if ends is None:
@@ -243,6 +241,19 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
                                                 (q[on_b] @ b.normal + b.offset) ** 2]))))  # fmt: skip
     return replace(s, points=ends, normals_a=np.tile(a.normal, (2, 1)), normals_b=np.tile(b.normal, (2, 1)),
                    support=int(on_a.sum() + on_b.sum()), rms_m=rms, gap_m=gap)  # fmt: skip
+
+
+def _root_line(q: FloatArray, sig: FloatArray, line0: FloatArray, u: FloatArray,
+               across: tuple[FloatArray, FloatArray], faces: tuple[Surface, Surface],
+               ends: tuple[FloatArray, FloatArray], reach_m: float) -> tuple[FloatArray, float]:  # fmt: skip
+    """A V-groove's seam: the middle of its bevels' lower edges and the gap between them when its root is open
+    (:mod:`perception.fine.root`), else the bevels' intersection ``line0`` and no gap."""
+    span = (float((ends[0] - line0) @ u), float((ends[1] - line0) @ u))
+    edges = open_root(q, sig, line0, u, across, faces, span, radius_m=min(0.6 * reach_m, ROOT_RADIUS_M))
+    if edges is None:
+        return line0, 0.0
+    edge_a, edge_b = line0 + edges[0] * across[0], line0 + edges[1] * across[1]
+    return 0.5 * (edge_a + edge_b), float(np.linalg.norm(edge_b - edge_a))
 
 
 def _beyond_band(far: FloatArray, labels: NDArray[np.int32], sig: FloatArray, planes: tuple[Surface, Surface],
@@ -276,66 +287,6 @@ def _refit(S: Surface, S0: Surface, near: FloatArray, far: FloatArray, weight_fa
     if n @ S0.normal < 0:
         n, off = -n, -off
     return replace(S, normal=n, offset=off)
-
-
-def _root_edges(q: FloatArray, others: FloatArray, line0: FloatArray, u: FloatArray, va: FloatArray, vb: FloatArray,
-                a: Surface, b: Surface, sig: FloatArray, spacing: FloatArray, ends: tuple[FloatArray, FloatArray], *,
-                max_reach_m: float, rp: RefineParams) -> tuple[float, float] | None:  # fmt: skip
-    """Where each face's lower edge lies (its distance from the intersection along the face) when the root
-    between them is open; None when it is closed.
-
-    Each pixel's ray crosses a face's plane somewhere. A point on the plane where its ray crosses it is
-    evidence of the face there; a point clearly behind the plane (the floor or the far root face seen
-    through an open root) says the ray passed the plane there without meeting the face. Going down a face
-    towards the intersection, the face ends where the passing rays begin to outnumber the meeting ones
-    (the floor seen through the gap crosses the plane's extension further down and is no evidence of the
-    face). The crossings depend on the pixels' rays and the fitted planes, not on the points' noisy depths.
-    The two plates' root faces are taken as equally high, so one face's edge places the other's when the
-    view shows only one. Missing data near the root (a shadow, the root hidden behind a bevel) is no
-    evidence either way and leaves the root closed; so is a groove whose noise hides its root gap."""
-    rel = q - line0
-    t = rel @ u
-    t0, t1 = sorted(float((e - line0) @ u) for e in ends)
-    rays = q / np.linalg.norm(q, axis=1, keepdims=True)
-    width = max(0.5 * float(np.median(spacing)), 1e-4)
-    step = 2.0 * rp.end_bin_m
-    bins_t = max(1, int(np.ceil((t1 - t0) / step)))
-    up = a.normal + b.normal
-    up -= (up @ u) * u
-    up /= max(float(np.linalg.norm(up)), 1e-12)
-    levels = []
-    res_a, res_b = q @ a.normal + a.offset, q @ b.normal + b.offset
-    for S, v, res in ((a, va, res_a), (b, vb, res_b)):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_on = ((-S.offset / (rays @ S.normal))[:, None] * rays - line0) @ v
-        keep = np.isfinite(s_on) & (s_on >= 0.0) & (s_on < max_reach_m) & (t >= t0) & (t <= t1)
-        edges = np.arange(0.0, max_reach_m + width, width)
-        mine = np.abs(res) <= others
-        n_face = np.histogram(s_on[keep & (np.abs(res) <= 2.0 * sig) & mine], bins=edges)[0]
-        free = keep & ((res < -3.0 * sig) | (~mine & (others <= 2.0 * sig)))
-        n_free = np.histogram(s_on[free], bins=edges)[0]
-        # the face's lower edge: the change point below which the rays that passed the plane outnumber the
-        # ones that met the face most (a step fitted to the two counts, robust to a stray bin higher up)
-        lead = np.concatenate([[0], np.cumsum(n_free - n_face)])
-        e = int(np.argmax(lead))
-        seen_free, seen_face = np.flatnonzero(n_free[:e]), e + np.flatnonzero(n_face[e:])
-        if lead[e] < 3 or seen_face.size == 0 or seen_face[0] - seen_free[-1] > 2:
-            continue  # no edge, or unseen bins between the last passing ray and the face: no edge to place
-        reach = float(edges[e])
-        k = np.floor((t[free & (s_on <= reach)] - t0) / step).astype(int)
-        if np.unique(np.clip(k, 0, bins_t - 1)).size < 0.3 * bins_t:
-            continue
-        levels.append(reach * float(v @ up))
-    # a flat bottom seen inside the groove (the table through a gap with no root face): the root is no lower
-    h = rel @ up
-    bottom = (res_a > 3.0 * sig) & (res_b > 3.0 * sig) & (h < 0.5 * max_reach_m) & (t >= t0) & (t <= t1)
-    k = np.floor((t[bottom] - t0) / step).astype(int)
-    if bottom.sum() >= 3 and np.unique(np.clip(k, 0, bins_t - 1)).size >= 0.3 * bins_t:
-        levels = [max(float(np.mean(levels)) if levels else 0.0, float(np.median(h[bottom])))]
-    if not levels:
-        return None
-    level = float(np.mean(levels))
-    return level / max(float(va @ up), 1e-6), level / max(float(vb @ up), 1e-6)
 
 
 def _short_of_far_edge(d: FloatArray, on: NDArray[np.bool_], margin: FloatArray, band_m: float) -> NDArray[np.bool_]:
