@@ -139,7 +139,11 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     if not runs:
         return None
     r0, r1 = max(runs, key=lambda r: r[1] - r[0])
-    t_lo, t_hi = lo + r0 * sp.bin_m, lo + r1 * sp.bin_m
+    # the ends: the outermost points of both plates inside the covered run (not its bins' edges, up to a
+    # bin beyond them)
+    inside = (t >= lo + r0 * sp.bin_m) & (t <= lo + r1 * sp.bin_m)
+    t_lo = max(float(t[near_up & inside].min()), float(t[near_low & inside].min()))
+    t_hi = min(float(t[near_up & inside].max()), float(t[near_low & inside].max()))
     face = on_face & (t >= t_lo) & (t <= t_hi)
     slope = 0.0
     if face.sum() >= 20 and np.ptp(t[face]) > 0.5 * (t_hi - t_lo):

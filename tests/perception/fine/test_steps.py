@@ -76,3 +76,20 @@ def test_a_step_is_claimed_only_where_its_plates_lie_apart_beyond_the_noise_of_b
         return
     (s,) = seams
     assert np.median(point_to_polyline_distance(s.points, gt)) < 3e-4, s.points
+
+
+def test_a_lap_seam_ends_where_the_plates_last_points_are() -> None:
+    # a 1280 x 720 zoo lap (dev seed 22, exact depth): the seam's ends are the plates' outermost points in the
+    # covered run, not the run's 2 mm bins' edges (which put one end 1.55 mm beyond the plates)
+    from perception.detect import DetectParams, detect
+    from perception.transforms import invert_X, transform_points
+    from sim_fakes.zoo import draw_capture
+
+    z = draw_capture("lap", 22, noise_free=True)
+    result = detect(z.result.capture, DetectParams(method="surfaces"))
+    (gt,) = [g for g in z.result.ground_truth if g.joint == "lap"]
+    X = z.result.capture.X_base_camera
+    (s,) = [s for s in result.seams if s.joint == "lap"]
+    p = s.points if X is None else transform_points(invert_X(X), s.points)
+    d = np.linalg.norm(p[[0, -1]][:, None] - gt.points_camera[[0, -1]][None], axis=2).min(axis=1)
+    assert d.max() < 5e-4
