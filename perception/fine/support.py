@@ -14,6 +14,7 @@ from perception.fine.types import NoiseModel, SurfaceSet
 
 ABOVE_SHARE = 0.97  # at least this share of all points lies on or above the support
 MIN_SHARE = 0.08  # and it holds at least this share of the labelled pixels
+FLATNESS_M = 0.001  # pieces of the support plane agree this well (a welding table is flat to a fraction of this)
 
 
 def find_support(
@@ -43,6 +44,10 @@ def find_support(
     same = {best}
     for s in surfaces.surfaces:
         parallel = s.kind == "plane" and s.label != best and float(s.normal @ S.normal) > np.cos(np.radians(3.0))
-        if parallel and abs(float(S.residual(s.centroid[None])[0])) <= 6.0 * float(noise.sigma_m(s.z_m)) + 0.002:
+        # the same plane: the piece's mean within a table's flatness of the plane (its noise averages out over
+        # its points); a plate lying on the table is its thickness above it
+        if parallel and abs(float(S.residual(s.centroid[None])[0])) <= FLATNESS_M + 3.0 * float(
+            noise.sigma_m(s.z_m)
+        ) / np.sqrt(max(s.n_points, 1)):
             same.add(s.label)
     return frozenset(same)
