@@ -13,7 +13,7 @@
                                      plates, each bevel fitted on its cross-section at full resolution
       -> steps.step_seams            laps and steps: an upper plate's edge dropped onto the lower plate
       -> refine.refine_seams         both surfaces refitted on full-resolution points near the seam
-      -> visibility.clip_to_view     kept where both faces are seen at under 75 degrees, in runs >= 20 mm
+      -> visibility.clip_to_view     kept where both faces are seen at under 75 degrees, in runs >= 15 mm
 
 Lengths in metres, angles in radians inside; the thresholds are multiples of the measured noise and of
 the sample spacing, so that one set of constants holds from 0.3 to 0.9 m and from structured light to a
