@@ -6,7 +6,7 @@ left out is ``info["removed_share"]``). Prompts and the image segmenter are not 
 accepted for the same signature as :func:`perception.detect.detect`); the table is told apart by geometry.
 
     noise -> surfaces -> support -> adjacency -> folds, gaps, grooves     (work resolution)
-          -> refine -> inner gaps, steps -> merge -> view clip             (full resolution near the seams)
+          -> refine -> inner gaps, steps -> merge -> view clip -> corners  (full resolution near the seams)
 
 Each step is timed and counted in the result's ``timing_s`` (``step_<name>``) and ``info["counts"]``.
 """
@@ -148,6 +148,7 @@ def _full_resolution_steps(
 ) -> tuple[list[SeamCurve], int]:
     """Refinement on the full-resolution points near each seam, the narrow gaps and steps only full
     resolution shows, and the view clip; with how many full-resolution points were read."""
+    from perception.fine.corners import join_corners
     from perception.fine.gaps import inner_gap_seams
     from perception.fine.merge import merge_collinear
     from perception.fine.refine import refine_seams
@@ -169,6 +170,8 @@ def _full_resolution_steps(
         curves = merge_collinear(curves, organized, capture.intrinsics, noise_full)
     with log.step("view"):
         curves = clip_to_view(curves)
+    with log.step("corners"):
+        curves = join_corners(curves, noise_full)
     return curves, used
 
 

@@ -12,8 +12,11 @@
       -> grooves.groove_seams        V-grooves with bevels too thin to segment: the trough between two
                                      plates, each bevel fitted on its cross-section at full resolution
       -> steps.step_seams            laps and steps: an upper plate's edge dropped onto the lower plate
-      -> refine.refine_seams         both surfaces refitted on full-resolution points near the seam
+      -> refine.refine_seams         both surfaces refitted on full-resolution points near the seam (planes
+                                     out to 100 mm on their faces); open roots: root.open_root
+      -> merge.merge_collinear       pieces of one straight seam joined
       -> visibility.clip_to_view     kept where both faces are seen at under 75 degrees, in runs >= 15 mm
+      -> corners.join_corners        two seams meeting at a corner end at their lines' crossing
 
 Lengths in metres, angles in radians inside; the thresholds are multiples of the measured noise and of
 the sample spacing, so that one set of constants holds from 0.3 to 0.9 m and from structured light to a
