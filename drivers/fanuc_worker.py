@@ -220,7 +220,10 @@ class _Session:
                 if done:
                     stream.result()
                     return
-                self._raise_if_unsafe(client, await self._motion_status(client))
+                status = await self._motion_status(client)
+                error = safety_error(self.s.name, status, client.system_fault) or paused_error(self.s.name, status)
+                if error is not None:
+                    raise error
         except BaseException as err:
             if not stream.done():
                 stream.cancel()
@@ -292,6 +295,20 @@ def safety_error(name: str, status: RMIStatus, system_fault: SystemFault | None)
             "read the teach pendant, clear the cause, then reset_faults()"
         )
     return None
+
+
+def paused_error(name: str, status: RMIStatus) -> DriverError | None:
+    """During a motion: the RMI program paused (status 2) is a fault now. This driver never pauses it (a stop is an
+    FRC_Abort), so the controller did: an alarm of STOP.G severity (the heartbeat program's ``UALM[1]``, a welder's
+    fault input) holds the motion with servo power on and the instructions in flight unanswered; waiting for them
+    would last until the motion's timeout."""
+    if status.rmi_motion_status != 2 and status.program_status != 2:
+        return None
+    return DeviceFault(
+        f"{name}: the controller paused the RMI program during a motion (RMIMotionStatus="
+        f"{status.rmi_motion_status}, ProgramStatus={status.program_status}): an alarm stopped it; read the alarm on "
+        "the teach pendant, clear its cause, then reset_faults() after acknowledgement"
+    )
 
 
 # ---------------------------------------------------------------------------------------------- the process

@@ -84,7 +84,7 @@ class FakeFanucController(LoopThreadFake):
     """
 
     supported_faults: frozenset[str] = frozenset(
-        {"drop_connection", "no_answer", "protective_stop", "emergency_stop", "rmi_error", "system_fault"}
+        {"drop_connection", "no_answer", "protective_stop", "emergency_stop", "rmi_error", "system_fault", "alarm"}
     )
 
     def __init__(
@@ -175,12 +175,17 @@ class FakeFanucController(LoopThreadFake):
 
     # ================================================================================== control handle
     def inject(self, fault: str, **params: Any) -> None:
-        """Switch ``fault`` on (see ``sim_fakes.faults``); ``"rmi_error"`` needs ``code=<ErrorID>``."""
+        """Switch ``fault`` on (see ``sim_fakes.faults``); ``"rmi_error"`` needs ``code=<ErrorID>``.
+
+        ``"alarm"`` (optional ``text=``): a STOP.G alarm from controller-side logic other than RMI (a welder's fault
+        input, the heartbeat program): motion stops where it is and the RMI program pauses (RMIMotionStatus 2) with
+        servo power on, its instructions unanswered; FRC_Continue is refused until FRC_Reset clears the alarm."""
         if fault not in self.supported_faults:
             raise ValueError(f"fake FANUC does not support fault {fault!r}; supported: {sorted(self.supported_faults)}")
         if fault == "rmi_error" and ("code" not in params or int(params["code"]) == 0):
             raise ValueError("fault 'rmi_error' needs a non-zero code=<ErrorID>, e.g. code=2556964")
-        unknown = set(params) - ({"code"} if fault == "rmi_error" else set())
+        allowed = {"rmi_error": {"code"}, "alarm": {"text"}}.get(fault, set())
+        unknown = set(params) - allowed
         if unknown:
             raise ValueError(f"fault {fault!r} takes no parameters {sorted(unknown)}")
         self._call(lambda: self._apply_fault(fault, params))
@@ -255,6 +260,9 @@ class FakeFanucController(LoopThreadFake):
             self._halt()
         elif fault == "rmi_error":
             self._next_error = int(params["code"])
+        elif fault == "alarm":
+            self._alarm = str(params.get("text", "UALM[2] alarm raised by controller-side logic"))
+            self._halt()
         elif fault == "system_fault":
             seq = self._queue[0].seq if self._queue else self._last_completed_seq
             self._halt()

@@ -6,7 +6,8 @@ Fault names are shared across devices where they mean the same thing:
 - ``"drop_connection"``: close every client connection now (and refuse new ones until cleared).
 - ``"no_answer"``: keep connections open but stop answering (a hung controller).
 - ``"protective_stop"`` / ``"emergency_stop"``: robot safety stops (motion halts, state reports it).
-- ``"rmi_error"`` (FANUC, param ``code``), ``"system_fault"`` (FANUC).
+- ``"rmi_error"`` (FANUC, param ``code``), ``"system_fault"`` (FANUC), ``"alarm"`` (FANUC, param ``text``: a STOP.G
+  alarm pauses the program with servo power on).
 - ``"modbus_exception"`` (track, param ``code``), ``"track_fault"`` (track, param ``code``).
 - ``"frame_timeout"``, ``"corrupt_frame"`` (camera).
 

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from drivers.errors import (
     ConnectionLost,
+    DeviceFault,
     EmergencyStop,
     MotionAborted,
     MotionRejected,
@@ -392,6 +393,33 @@ def test_protective_stop_blocks_motion_until_reset(robot: FanucRobot, fake: Fake
     robot.reset_faults()
     robot.move_linear(offset(X0, dz=0.01), speed_m_s=0.2, timeout_s=5)
     assert_pose_close(robot.get_X_base_tool(), offset(X0, dz=0.01))
+
+
+@pytest.mark.timeout(30)
+def test_an_alarm_that_pauses_the_program_mid_motion_is_a_fault_at_the_next_status_poll(
+    robot: FanucRobot, fake: FakeFanucController
+) -> None:
+    # servo power stays on and the paused program leaves the instruction unanswered: only the status says so
+    X0 = robot.get_X_base_tool()
+    timer = after(0.3, lambda: fake.inject("alarm", text="UALM[2] welder fault input"))
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(DeviceFault, match=r"paused the RMI program during a motion \(RMIMotionStatus=2") as info:
+            robot.move_linear(offset(X0, dy=0.2), speed_m_s=0.1, timeout_s=10)
+    finally:
+        timer.cancel()
+    took_s = time.monotonic() - t0
+    assert type(info.value) is DeviceFault  # not a MotionTimeout after the 10 s
+    assert 0.3 <= took_s < 1.3  # the alarm, one status poll (20 ms), the abort: a second is plenty on a loaded host
+    stopped_at = robot.get_X_base_tool()
+    assert 0.005 < stopped_at[1, 3] - X0[1, 3] < 0.1  # halted where it was at 0.1 m/s
+    assert robot.state().healthy  # servo power on, no safety stop: the alarm is on the pendant
+    with pytest.raises(RMIError) as refused:  # RMI_MOVE cannot start again while the alarm stands
+        robot.move_linear(offset(stopped_at, dz=0.01), speed_m_s=0.2, timeout_s=5)
+    assert refused.value.code == ErrorID.INVALID_CONTROLLER_STATE
+    robot.reset_faults()
+    robot.move_linear(offset(stopped_at, dz=0.01), speed_m_s=0.2, timeout_s=5)
+    assert_pose_close(robot.get_X_base_tool(), offset(stopped_at, dz=0.01))
 
 
 @pytest.mark.timeout(30)

@@ -28,7 +28,10 @@ def test_every_fakes_handle_has_the_faults_the_module_documents() -> None:
     faults = {name: handle.supported_faults for name, handle in HANDLES.items()}
     assert faults == {
         "ur": {"drop_connection", "no_answer", "protective_stop", "emergency_stop"},
-        "fanuc": {"drop_connection", "no_answer", "protective_stop", "emergency_stop", "rmi_error", "system_fault"},
+        "fanuc": {
+            *("drop_connection", "no_answer", "protective_stop", "emergency_stop"),
+            *("rmi_error", "system_fault", "alarm"),
+        },
         "fanuc process": faults["fanuc"],  # the process handle forwards to the same fake
         "track": {"drop_connection", "no_answer", "modbus_exception", "track_fault"},
         "camera": {"frame_timeout", "corrupt_frame", "drop_connection"},
