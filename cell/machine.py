@@ -332,6 +332,7 @@ class CellMachine:
         self.paused_from = None
         self._aborted = False
         self.fault_reason = None
+        self.last_error = None
 
     def _cb_home(self, event: EventData) -> None:
         self.actions.home()
@@ -421,7 +422,7 @@ class CellMachine:
         if isinstance(err, MachineError):
             raise err  # a trigger that is not allowed here: the caller's mistake, not a fault
         assert err is not None
-        self.last_error = err
+        self.last_error = _without_frames(err)
         trigger = event.event.name if event.event is not None else "?"
         where = self.state.value
         reason = f"{trigger} failed in {where}: {type(err).__name__}: {err}"
@@ -463,6 +464,24 @@ class _Model:
 
     state: Any
     trigger: Callable[..., bool]
+
+
+def _without_frames(err: BaseException) -> BaseException:
+    """``err`` with its traceback and those of the exceptions chained to it (``__cause__``, ``__context__``) dropped.
+
+    The machine keeps a fault's error (:attr:`CellMachine.last_error`, which the job report reads) after the job: its
+    tracebacks would keep the job's frames alive, and their locals the job's captures and clouds (hundreds of MiB a
+    job), chained faults more than one job's. The type and the message are what is read afterwards."""
+    seen: set[int] = set()
+    todo: list[BaseException] = [err]
+    while todo:
+        e = todo.pop()
+        if id(e) in seen:
+            continue
+        seen.add(id(e))
+        e.__traceback__ = None
+        todo.extend(x for x in (e.__cause__, e.__context__) if x is not None)
+    return err
 
 
 def _operator(operator: str) -> str:

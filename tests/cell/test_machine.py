@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
+import gc
 import itertools
 import logging
 import threading
+import weakref
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from transitions import MachineError
 
@@ -192,6 +196,37 @@ def test_a_failing_side_effect_leaves_the_state_unchanged_then_lands_in_fault_wi
     assert transitions_of(journal, job) == [("idle", "homing"), ("homing", "fault")]
     rec = journal.job(job)
     assert rec.state == "failed" and rec.error == machine.fault_reason
+
+
+def test_the_stored_error_of_a_fault_keeps_no_frame_and_no_capture_of_the_job_alive() -> None:
+    # a capture that fails while handling another error: two chained exceptions, each with a traceback whose frames
+    # hold the job's arrays (as a detection's do)
+    frames: list[weakref.ref[np.ndarray]] = []
+    machine, cell = make()
+
+    def capture(index: int) -> None:
+        pixels = np.zeros((480, 640, 3))
+        frames.append(weakref.ref(pixels))
+        try:
+            cloud = np.ones((480 * 640, 3))
+            frames.append(weakref.ref(cloud))
+            raise OSError("socket closed")
+        except OSError as err:
+            raise ConnectionLost("camera link lost during the frame") from err
+
+    machine.actions = dataclasses.replace(cell.actions(), capture=capture)
+    machine.start_job(1)
+    while machine.state is not S.FAULT:
+        machine.advance()
+    gc.collect()
+    err = machine.last_error
+    assert isinstance(err, ConnectionLost) and str(err) == "camera link lost during the frame"
+    assert isinstance(err.__cause__, OSError) and str(err.__cause__) == "socket closed"  # the chain stays readable
+    assert [ref() is None for ref in frames] == [True, True]
+    assert (err.__traceback__, err.__cause__.__traceback__) == (None, None)
+    machine.acknowledge("op")
+    machine.start_job(2)
+    assert machine.last_error is None  # the next job starts without the last one's error
 
 
 def test_a_safety_refusal_in_planning_is_a_fault_with_its_reason(journal: Journal) -> None:

@@ -14,9 +14,11 @@ ur-rtde worker) is started once for the module, and each test gets its own journ
 
 from __future__ import annotations
 
+import gc
 import json
 import threading
 import time
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -358,6 +360,23 @@ def test_no_seam_found_faults_with_the_reason_and_nothing_is_welded(rig: Rig) ->
     assert_fault(rig, report, words=("NoSeamFound",), outcome="no_seam")
     assert report.seams_found == 0 and report.poses_sent == 2 and rig.arc_is_off()
     follow_up_job_runs(rig, weld=False)
+
+
+@pytest.mark.timeout(90)
+def test_a_faulted_jobs_captures_are_freed_once_the_next_job_has_run(fanuc: Rig) -> None:
+    # the fault's error is kept after the job (the report reads it): it must not keep the job's frames and with them
+    # its captures (hundreds of MiB on a real camera); the runner itself keeps only the latest job's
+    report = fanuc.runner.run(make_job(job_text(capture=BARE_TABLE_CAPTURE)))
+    assert report.outcome == "no_seam"
+    data = fanuc.runner.current
+    assert data is not None and len(data.captures) == 1
+    capture = weakref.ref(data.captures[0][1])
+    pixels = weakref.ref(data.captures[0][1].depth_m)
+    del data
+    follow_up_job_runs(fanuc, weld=False)
+    gc.collect()
+    assert capture() is None, "the faulted job's capture is still alive"
+    assert pixels() is None, "the faulted job's depth image is still alive"
 
 
 @on_both_robots
