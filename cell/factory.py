@@ -139,10 +139,12 @@ def start_simulators(config: CellConfig) -> Simulators:
             sims.robot, sims.robot_address = ur, (rc.host, 30004)
         tc = config.track
         if tc.kind == "fake":
-            from sim_fakes.fake_track import FakeTrack
+            from sim_fakes.fake_track_process import FakeTrackProcess
 
+            # in a process of its own too: as a thread of the daemon it answered the job watchdog's status reads
+            # late while a job was detecting on a loaded host
             assert tc.host is not None and tc.counts_per_m is not None
-            track = FakeTrack(
+            track = FakeTrackProcess(
                 host=tc.host,
                 port=tc.port,
                 unit_id=tc.unit_id,

@@ -16,7 +16,7 @@ from typing import Any
 from drivers.priority import enter_io_process
 from sim_fakes.fake_fanuc import FakeFanucController
 from sim_fakes.fanuc_program import HeartbeatProgram, InstructionRecord
-from sim_fakes.process_fake import ProcessFake
+from sim_fakes.process_fake import ProcessFake, serve_handle
 
 HANDLE_METHODS = frozenset(
     {
@@ -46,22 +46,7 @@ def _serve(conn: Connection, host: str, port: int, heartbeat: HeartbeatProgram |
         return
     conn.send(("ready", fake.port))
     try:
-        while True:
-            try:
-                request = conn.recv()
-            except (EOFError, OSError):
-                return  # the parent is gone: nobody can use the fake any more
-            if request[0] == "shutdown":
-                conn.send(("ok", None))
-                return
-            name, args, kwargs = request
-            if name not in HANDLE_METHODS:
-                conn.send(("error", f"the fake FANUC's handle has no method {name!r}"))
-                continue
-            try:
-                conn.send(("ok", getattr(fake, name)(*args, **kwargs)))
-            except Exception as err:
-                conn.send(("error", f"{type(err).__name__}: {err}"))
+        serve_handle(conn, fake, HANDLE_METHODS, "the fake FANUC")
     finally:
         fake.stop()
 

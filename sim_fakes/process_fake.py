@@ -108,3 +108,25 @@ class ProcessFake:
         if status != "ok":
             raise ValueError(result)
         return result
+
+
+def serve_handle(conn: Connection, fake: Any, methods: frozenset[str], label: str) -> None:
+    """The child's side once ``fake`` serves: answer ``(method, args, kwargs)`` requests with the result of that
+    method of ``fake`` (only those in ``methods``) until ``("shutdown",)`` or until the parent goes away. The caller
+    sent ``("ready", ...)`` and stops ``fake`` afterwards."""
+    while True:
+        try:
+            request = conn.recv()
+        except (EOFError, OSError):
+            return  # the parent is gone: nobody can use the fake any more
+        if request[0] == "shutdown":
+            conn.send(("ok", None))
+            return
+        name, args, kwargs = request
+        if name not in methods:
+            conn.send(("error", f"{label}'s handle has no method {name!r}"))
+            continue
+        try:
+            conn.send(("ok", getattr(fake, name)(*args, **kwargs)))
+        except Exception as err:
+            conn.send(("error", f"{type(err).__name__}: {err}"))

@@ -12,6 +12,7 @@ from sim_fakes.fake_camera import FakeCamera
 from sim_fakes.fake_fanuc import FakeFanucController
 from sim_fakes.fake_fanuc_process import FakeFanucProcess
 from sim_fakes.fake_track import FakeTrack
+from sim_fakes.fake_track_process import FakeTrackProcess
 from sim_fakes.fake_ur import FakeURController
 from sim_fakes.faults import FaultInjectable
 
@@ -20,6 +21,7 @@ HANDLES = {
     "fanuc": FakeFanucController,
     "fanuc process": FakeFanucProcess,
     "track": FakeTrack,
+    "track process": FakeTrackProcess,
     "camera": FakeCamera,
 }
 
@@ -34,6 +36,7 @@ def test_every_fakes_handle_has_the_faults_the_module_documents() -> None:
         },
         "fanuc process": faults["fanuc"],  # the process handle forwards to the same fake
         "track": {"drop_connection", "no_answer", "modbus_exception", "track_fault"},
+        "track process": faults["track"],
         "camera": {"frame_timeout", "corrupt_frame", "drop_connection"},
     }
     doc = sim_fakes.faults.__doc__ or ""
@@ -41,7 +44,8 @@ def test_every_fakes_handle_has_the_faults_the_module_documents() -> None:
     assert sorted(f for f in every if f'``"{f}"``' not in doc) == []  # each name the fakes know is documented
     # a shared name is one idea: the drop and the hang are the network faults every networked device has
     assert set.intersection(*(set(f) for f in faults.values())) == {"drop_connection"}
-    assert {n for n, f in faults.items() if "no_answer" in f} == {"ur", "fanuc", "fanuc process", "track"}
+    hang = {"ur", "fanuc", "fanuc process", "track", "track process"}
+    assert {n for n, f in faults.items() if "no_answer" in f} == hang
 
 
 def test_the_protocol_is_checked_at_run_time_on_what_a_handle_has() -> None:
