@@ -1,6 +1,6 @@
 """What the cell checks of a job before it is queued or run, against the cell config's ``[safety]`` and ``[track]``:
-the :class:`cell.safety.SafetyLimits` of a config, a job's limits (:func:`check_job`) and its capture poses in the
-robot's base frame (:func:`capture_pose`)."""
+the :class:`cell.safety.SafetyLimits` of a config, a job's limits (:func:`check_job`), its capture poses in the
+robot's base frame (:func:`capture_pose`) and which of them, or home, the robot stands at (:func:`station_of`)."""
 
 from __future__ import annotations
 
@@ -14,9 +14,15 @@ from cell.job import Job, weld_params
 from cell.planning import CellGeometry, Reach, TrackAxis
 from cell.safety import SafetyLimits
 from cell.world_seams import X_world_base
+from perception.transforms import rotation_angle_rad
 
 MAX_DWELL_S = 10.0
 """The longest arc-on or arc-off dwell a job may ask for."""
+STATION_TOLERANCE_M = 0.005
+STATION_TOLERANCE_RAD = math.radians(1.0)
+STATION_TRACK_TOLERANCE_M = 0.001
+"""How close the tool (position, orientation) and the carriage must be to a pose for :func:`station_of` to say the
+robot stands there: a stopped controller settles within a millimetre; a fault mid-move leaves it centimetres off."""
 
 
 def safety_limits(config: CellConfig) -> SafetyLimits:
@@ -122,3 +128,27 @@ def capture_pose(config: CellConfig, limits: SafetyLimits, job: Job, index: int)
     X_world_fixture = np.asarray(fixture.X_world_fixture, dtype=np.float64)
     X_base_world = X_world_base(-spec.track_position_m, limits.geometry.axis_base)
     return X_base_world @ X_world_fixture @ X
+
+
+def station_of(
+    config: CellConfig, limits: SafetyLimits, job: Job, X_base_tool: np.ndarray, track_position_m: float
+) -> str | None:
+    """Where the robot stands, of the places a dry run may capture from: ``"home"`` (the cell's ``[home]`` pose with
+    the carriage at its home position), ``"capture pose N"`` (1-based: the job's capture N with the carriage at its
+    track position), or None (anywhere else: where a fault left it). ``X_base_tool``: (4, 4), the robot's measured
+    pose; ``track_position_m``: the carriage's measured position (0 without a track)."""
+
+    def at(X: np.ndarray, track_m: float) -> bool:
+        return bool(
+            np.linalg.norm(X_base_tool[:3, 3] - X[:3, 3]) <= STATION_TOLERANCE_M
+            and rotation_angle_rad(X_base_tool, X) <= STATION_TOLERANCE_RAD
+            and abs(track_position_m - track_m) <= STATION_TRACK_TOLERANCE_M
+        )
+
+    home = config.home
+    if home.pose is not None and at(home.pose.X_base_tool(), home.track_position_m):
+        return "home"
+    for i, spec in enumerate(job.captures):
+        if at(capture_pose(config, limits, job, i), spec.track_position_m):
+            return f"capture pose {i + 1}"
+    return None

@@ -19,7 +19,11 @@ at once, from its thread). The drivers raise the same conditions during a motion
 between motions (while capturing or detecting).
 
 A dry run (``dry_run=True``) moves nothing and switches nothing: the captures are taken where the robot and track
-stand (with their measured pose), then the path is planned and validated and the job ends without welding.
+stand (with their measured pose), then the path is planned and validated and the job ends without welding. After an
+acknowledged fault, until a job has homed the robot again, a dry run captures only from home or from one of the
+job's capture poses (:func:`cell.job_checks.station_of`): a fault can leave the torch anywhere (on the part, half way
+to a capture pose), and frames from there find no seam or the wrong ones. Elsewhere it is refused before it
+captures (a :class:`SafetyViolation` naming where the robot stands and what to do).
 
 The report (:class:`JobReport`) gives the final state, the seams found, planned and welded, the poses sent to the
 robot, the arc-on time and the cycle time split into capture (moves to the capture poses and frames), detection,
@@ -42,7 +46,7 @@ import numpy as np
 from cell.errors import ConfigError, SafetyViolation, WeldcellError
 from cell.factory import Cell
 from cell.job import PROMPTS_AUTOMATIC, Job, detect_params, weld_params
-from cell.job_checks import capture_pose, check_job, safety_limits
+from cell.job_checks import capture_pose, check_job, safety_limits, station_of
 from cell.job_report import JobData, JobReport, job_report
 from cell.journal import Journal
 from cell.machine import CellActions, CellMachine, CellState
@@ -110,6 +114,7 @@ class JobRunner:
         self.status_image = Path(status_image) if status_image is not None else None
         self._job_lock = threading.Lock()  # held by run() for a whole job; acknowledge() waits for it
         self._data: JobData | None = None
+        self._moved_by_fault = False  # a fault was acknowledged and no job has homed the robot since
         arc_output = cell.config.welding.arc_output
         self._arc_index = arc_output if arc_output is not None else WeldParams().arc_do_index
         self._arc_on_since: float | None = None
@@ -248,7 +253,10 @@ class JobRunner:
         if not self._job_lock.acquire(timeout=wait_s):
             raise CellBusy(f"the job runner is still finishing its job after {wait_s:.0f} s; acknowledge again")
         try:
-            return self.machine.acknowledge(operator)
+            left = self.machine.acknowledge(operator)
+            if left:
+                self._moved_by_fault = True  # the fault may have stopped the robot anywhere
+            return left
         finally:
             self._job_lock.release()
 
@@ -376,6 +384,7 @@ class JobRunner:
                 self._note("robot to its home pose")
                 self._move(home.pose.X_base_tool(), self.config.robot.speed_m_s, self.config.robot.accel_m_s2, "home")
             self._move_track(home.track_position_m, "home")
+            self._moved_by_fault = False
 
     def _move_to_capture(self, index: int) -> None:
         data = self._job()
@@ -390,11 +399,30 @@ class JobRunner:
             )
         with self._timed("capture"):
             if data.dry_run:
-                self._note(f"dry run: capture {index + 1}/{len(data.job.captures)} from where the robot stands")
+                where = self._dry_run_station(data.job) if index == 0 and self._moved_by_fault else None
+                self._note(
+                    f"dry run: capture {index + 1}/{len(data.job.captures)} from where the robot stands"
+                    + (f" ({where})" if where else "")
+                )
                 return
             self._move_track(spec.track_position_m, f"capture {index + 1}")
             self._note(f"robot to capture pose {index + 1}/{len(data.job.captures)}")
             self._move(X_base_tool, self.config.robot.speed_m_s, self.config.robot.accel_m_s2, f"capture {index + 1}")
+
+    def _dry_run_station(self, job: Job) -> str:
+        """After an acknowledged fault: home or the capture pose the robot stands at; SafetyViolation elsewhere."""
+        X_base_tool = self.cell.robot.get_X_base_tool()
+        track_m = self._track_position()
+        where = station_of(self.config, self.limits, job, X_base_tool, track_m)
+        if where is None:
+            p = X_base_tool[:3, 3]
+            raise SafetyViolation(
+                f"dry run after a fault: the tool stands at [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}] m (track "
+                f"{track_m:.4f} m), neither at home nor at one of the job's {len(job.captures)} capture pose(s), "
+                "and a dry run captures only from those (it moves nothing); run the job (it homes first) or bring "
+                "the robot home, then dry-run again"
+            )
+        return where
 
     def check_job(self, job: Job) -> None:
         """Refuse a job the cell must not even queue (:func:`cell.job_checks.check_job`)."""

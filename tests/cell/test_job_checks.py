@@ -8,11 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from cell.errors import ConfigError
 from cell.job import job_from_text
-from cell.job_checks import MAX_DWELL_S, capture_pose, check_job, safety_limits
+from cell.job_checks import MAX_DWELL_S, capture_pose, check_job, safety_limits, station_of
 from cell.planning import X_world_base
+from perception.transforms import make_X
 from tests.cell.runner_rig import cell_config, job_text
 
 CONFIG = cell_config(Path("unused"), "sim-cell-fanuc.toml")  # the example with [safety] max_speed_m_s = 0.6
@@ -61,3 +63,24 @@ def test_a_fixture_relative_capture_pose_is_brought_into_the_base_frame_at_its_t
     # the carriage 0.4 m along base y moves the pose 0.4 m the other way in the base frame
     at_zero = capture_pose(CONFIG, LIMITS, job_from_text(job_text(), source="j", base_dir=Path(".")), 0)
     np.testing.assert_allclose(capture_pose(CONFIG, LIMITS, job, 0)[:3, 3] - at_zero[:3, 3], [0, -0.4, 0], atol=1e-12)
+
+
+def test_a_dry_run_station_is_home_or_one_of_the_jobs_capture_poses_within_5_mm_and_1_degree() -> None:
+    job = job_from_text(job_text(track_position_m=0.5), source="job.toml", base_dir=Path("."))
+    assert CONFIG.home.pose is not None and CONFIG.home.track_position_m == 0.0
+    X_home = CONFIG.home.pose.X_base_tool()
+    X_capture = capture_pose(CONFIG, LIMITS, job, 0)
+
+    def shifted(X: np.ndarray, *, dx_m: float = 0.0, turn_deg: float = 0.0) -> np.ndarray:
+        turn = make_X(Rotation.from_euler("z", turn_deg, degrees=True).as_matrix(), np.zeros(3))  # about tool z
+        out = X @ turn
+        out[0, 3] += dx_m
+        return out
+
+    assert station_of(CONFIG, LIMITS, job, X_home, 0.0) == "home"
+    assert station_of(CONFIG, LIMITS, job, shifted(X_home, dx_m=0.004, turn_deg=0.9), 0.0009) == "home"
+    assert station_of(CONFIG, LIMITS, job, X_capture, 0.5) == "capture pose 1"
+    assert station_of(CONFIG, LIMITS, job, X_capture, 0.0) is None  # the carriage not where that capture wants it
+    assert station_of(CONFIG, LIMITS, job, X_home, 0.5) is None
+    assert station_of(CONFIG, LIMITS, job, shifted(X_home, dx_m=0.006), 0.0) is None
+    assert station_of(CONFIG, LIMITS, job, shifted(X_home, turn_deg=1.1), 0.0) is None

@@ -190,6 +190,35 @@ def test_a_dry_run_plans_and_validates_and_moves_nothing(fanuc: Rig) -> None:
 
 
 @pytest.mark.timeout(60)
+def test_after_a_fault_a_dry_run_captures_only_from_home_or_a_capture_pose_until_a_job_homes(fanuc: Rig) -> None:
+    job = make_job(job_text())
+    runner, robot = fanuc.runner, fanuc.cell.robot
+    X_home = robot.get_X_base_tool()  # the fake FANUC starts at the example's home pose
+    runner.machine.fault_now("test: a fault that stopped the robot on its way")
+    assert runner.acknowledge("Ada")
+    X_away = X_home.copy()
+    X_away[2, 3] -= 0.02  # 2 cm below home: where a fault can leave it
+    robot.move_linear(X_away, speed_m_s=0.5, accel_m_s2=1.0)
+    before = len(fanuc.robot_fake.records())
+    refused = runner.run(job, dry_run=True)
+    assert (refused.state, refused.outcome) == ("fault", "refused")
+    assert refused.reason is not None and "dry run after a fault: the tool stands at [" in refused.reason
+    assert "neither at home nor at one of the job's 1 capture pose(s)" in refused.reason
+    assert refused.seams_found == 0 and len(fanuc.robot_fake.records()) == before  # nothing moved, no frame used
+    assert runner.acknowledge("Ada")
+    robot.move_linear(runner.capture_pose(job, 0), speed_m_s=0.5, accel_m_s2=1.0)
+    report = runner.run(job, dry_run=True)
+    assert report.outcome == "dry_run" and report.seams_planned >= 8
+    notes = [e.reason for e in fanuc.journal.events(report.job_id)]
+    assert "dry run: capture 1/1 from where the robot stands (capture pose 1)" in notes
+    robot.move_linear(X_away, speed_m_s=0.5, accel_m_s2=1.0)
+    welded = runner.run(make_job(job_text(approval=True)), approve=lambda path: None)  # homes, captures, declined
+    assert welded.outcome == "rejected"
+    robot.move_linear(X_away, speed_m_s=0.5, accel_m_s2=1.0)
+    assert runner.run(job, dry_run=True).outcome != "refused"  # homed since the fault: where it stands is the rule
+
+
+@pytest.mark.timeout(60)
 def test_three_dry_runs_back_to_back_leave_no_thread_behind_and_are_all_journaled(fanuc: Rig) -> None:
     # the reduced soak (scripts/soak.py runs 100 and prints the memory use); a thread a job leaves shows after one
     job = make_job(job_text())
