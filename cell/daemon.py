@@ -76,7 +76,7 @@ from cell.job_exports import Exported, export_job, save_job_result
 from cell.job_report import CYCLE_PHASES, JobReport
 from cell.journal import JobRecord, Journal
 from cell.machine import PAUSABLE, CellState
-from cell.memory import limit_malloc_arenas, release_freed_memory
+from cell.memory import MemoryLog, limit_malloc_arenas, memory_log_from_env, release_freed_memory
 from cell.metrics import CellMetrics, DaemonSnapshot
 from cell.operator_view import devices_view, job_view, overlay_view, progress_view
 from cell.planning import WeldPath
@@ -163,6 +163,7 @@ class Daemon:
         self.metrics_registry = CellMetrics(snapshot=self._snapshot)
         self.arc_on_at_exit: bool | None = None
         """After :meth:`shutdown`: whether the arc output read on (None: it could not be read back)."""
+        self._memory_log: MemoryLog | None = None
         self._worker = threading.Thread(target=self._work, name="weldcell-jobs", daemon=True)
         self._serve(dc)
         self._report_previous_run()
@@ -206,6 +207,7 @@ class Daemon:
 
     def start(self) -> Daemon:
         limit_malloc_arenas()  # before the worker and HTTP threads exist
+        self._memory_log = memory_log_from_env()  # WELDCELL_MEMORY_SNAPSHOTS: the soak's leak figures
         self._worker.start()
         self.http.start()
         host, port = self.address
@@ -305,6 +307,16 @@ class Daemon:
                 with self._lock:
                     self._current = None
                 release_freed_memory()
+                self._record_memory(item.job_id)
+
+    def _record_memory(self, job_id: int) -> None:
+        """The memory figures after a job, once its memory is released (with WELDCELL_MEMORY_SNAPSHOTS only)."""
+        if self._memory_log is None:
+            return
+        try:
+            self._memory_log.record(job_id)
+        except Exception:  # a measurement must never stop the cell
+            logger.exception("job %d: cannot record the memory figures", job_id)
 
     def _count(self, report: JobReport) -> None:
         with self._lock:

@@ -32,13 +32,13 @@ before it has finished (otherwise it would hit the wrong job).
 
 After the last job it checks every submission against the API (``GET /jobs/{id}``: final state, outcome, error,
 ``/metrics`` counts) and, once the daemon has stopped, against the SQLite journal itself (one row per accepted
-job, named by its workpiece, started once). The daemon's resident memory (VmRSS of /proc/PID/status, sampled as
-each job finishes) must not grow by more than --rss-bound-mib after the first --warmup jobs: single samples swing
-by tens of MiB (the next job is often rendering and detecting), so the lowest sample of the first and of the last
-ten after warm-up are compared. Its thread count when idle must stay the same. The samples go to samples.json
-in the work folder. (glibc keeps memory the job worker freed in that thread's arena: with the default arenas the
-floor wandered by tens of MiB over 100 jobs, with MALLOC_ARENA_MAX=2 in the environment, which the daemon
-inherits, it stayed within the bound.) Finally a welding job is submitted and the daemon gets SIGTERM once its arc is on
+job, named by its workpiece, started once). Memory (scripts/soak_memory.py): the daemon runs with
+``WELDCELL_MEMORY_SNAPSHOTS`` and records, after each job and its ``malloc_trim``, its live Python memory
+(tracemalloc) and its resident size (memory.jsonl in the work folder); after the first --warmup jobs the traced
+memory must be flat (the medians of the first and the last third within --traced-bound-mib) and the resident size on
+a plateau (at most --rss-slope-mib per job over the last half). Its thread count when idle must stay the same. The
+soak's own samples (VmRSS and threads as each job finishes) go to samples.json in the work folder. Finally a welding
+job is submitted and the daemon gets SIGTERM once its arc is on
 (--no-sigterm-probe: when idle): it must exit 0, print that the arc output reads off, and journal that job as
 failed by SIGTERM.
 
@@ -72,6 +72,7 @@ sys.path.insert(0, str(REPO))
 
 from soak_daemon import Client, ServedDaemon  # noqa: E402
 from soak_in_process import run_in_process_soak  # noqa: E402
+from soak_memory import RSS_SLOPE_BOUND_MIB, TRACED_BOUND_MIB, MemoryVerdict, judge_memory, read_memory_log  # noqa: E402
 from soak_plan import (  # noqa: E402
     ARC_OFF_WITHIN_S,
     DEFAULT_FAULTS,
@@ -90,12 +91,15 @@ __all__ = [
     "HOSTILE",
     "Client",
     "FaultKind",
+    "MemoryVerdict",
     "PlannedJob",
     "ServedDaemon",
     "job_variant",
+    "judge_memory",
     "main",
     "plan_jobs",
     "print_summary",
+    "read_memory_log",
     "run_daemon_soak",
     "run_in_process_soak",
     "soak_config",
@@ -148,10 +152,7 @@ class SoakResult:
     exit_code: int | None = None
     exit_s: float | None = None
     arc_line: str | None = None
-    rss_window: int = 0
-    rss_floor_start: Sample | None = None
-    rss_floor_end: Sample | None = None
-    rss_growth_mib: float = 0.0
+    memory: MemoryVerdict | None = None
     hostile_ok: int = 0
     arc_off_s: dict[str, list[float]] = field(default_factory=dict)
     fault_s: dict[str, list[float]] = field(default_factory=dict)
@@ -474,25 +475,19 @@ class DaemonSoak:
             if row is None or row[2] != "failed" or "SIGTERM" not in (row[3] or ""):
                 self.fail(f"the SIGTERM probe job {self.result.probe_id}: want failed by SIGTERM, got {row}")
 
-    def check_resources(self, *, warmup: int, rss_bound_mib: float) -> None:
-        samples = self.result.samples
-        after = [s for s in samples if s.finished >= warmup]
-        if not after:
-            self.fail(f"fewer than {warmup} jobs finished: no memory figure after warm-up")
-            return
-        # A sample is taken when the soak sees a job finished, often while the next one renders and detects: single
-        # samples swing by tens of MiB. What a job leaves behind raises the floor, so the lowest sample of the
-        # first and of the last window after warm-up are compared.
-        r = self.result
-        r.rss_window = max(1, min(10, len(after) // 4))
-        r.rss_floor_start = min(after[: r.rss_window], key=lambda s: s.rss_mib)
-        r.rss_floor_end = min(after[-r.rss_window :], key=lambda s: s.rss_mib)
-        r.rss_growth_mib = r.rss_floor_end.rss_mib - r.rss_floor_start.rss_mib
-        if r.rss_growth_mib > rss_bound_mib:
-            self.fail(
-                f"the resident memory floor grew {r.rss_growth_mib:.1f} MiB from job {r.rss_floor_start.finished} "
-                f"to job {r.rss_floor_end.finished} (bound {rss_bound_mib:g} MiB)"
-            )
+    def check_resources(
+        self, memory_log: Path, *, warmup: int, traced_bound_mib: float, rss_slope_bound_mib: float
+    ) -> None:
+        """The memory rule (scripts/soak_memory.py) on the daemon's ``memory_log``, and the idle thread count."""
+        verdict = judge_memory(
+            read_memory_log(memory_log),
+            warmup=warmup,
+            traced_bound_mib=traced_bound_mib,
+            rss_slope_bound_mib=rss_slope_bound_mib,
+        )
+        self.result.memory = verdict
+        for text in verdict.failures:
+            self.fail(text)
         idle = [s.threads for s in self.result.idle_samples if s.finished >= warmup] or [
             s.threads for s in self.result.idle_samples[-1:]
         ]
@@ -519,7 +514,8 @@ def run_daemon_soak(
     weld_every: int = 10,
     faults: tuple[str, ...] = DEFAULT_FAULTS,
     warmup: int = 20,
-    rss_bound_mib: float = 20.0,
+    traced_bound_mib: float = TRACED_BOUND_MIB,
+    rss_slope_bound_mib: float = RSS_SLOPE_BOUND_MIB,
     sigterm_mid_weld: bool = True,
     every: int = 10,
     stall_s: float = 300.0,
@@ -532,7 +528,7 @@ def run_daemon_soak(
     t0 = time.monotonic()
     with _workdir(workdir) as wd:
         config_path, config_data = soak_config(Path(config), wd)
-        daemon = ServedDaemon(config_path, wd / "daemon.log")
+        daemon = ServedDaemon(config_path, wd / "daemon.log", memory_log=wd / "memory.jsonl")
         try:
             found = daemon.wait_line(r"listening on (http://\S+)", timeout_s=120)
             client = Client(found.group(1), config_data.get("daemon", {}).get("token"))
@@ -547,7 +543,12 @@ def run_daemon_soak(
             try:
                 soak.run()
                 soak.check_api()
-                soak.check_resources(warmup=warmup, rss_bound_mib=rss_bound_mib)
+                soak.check_resources(
+                    wd / "memory.jsonl",
+                    warmup=warmup,
+                    traced_bound_mib=traced_bound_mib,
+                    rss_slope_bound_mib=rss_slope_bound_mib,
+                )
             except (RuntimeError, OSError) as err:
                 soak.fail(f"the soak stopped: {err}")
             soak.probe_sigterm(mid_weld=sigterm_mid_weld, timeout_s=stall_s)
@@ -595,12 +596,13 @@ def print_summary(result: SoakResult, out: TextIO = sys.stdout) -> None:
             f"  rss MiB: first {s[0].rss_mib:.1f} (job {s[0].finished}), last {s[-1].rss_mib:.1f} "
             f"(job {s[-1].finished}), max {top.rss_mib:.1f} (job {top.finished})"
         )
-        a, b = result.rss_floor_start, result.rss_floor_end
-        if a is not None and b is not None:
+        m = result.memory
+        if m is not None and m.samples:
             p(
-                f"  rss floor (lowest of {result.rss_window} samples) after warm-up {a.rss_mib:.1f} "
-                f"(job {a.finished}), at the end {b.rss_mib:.1f} (job {b.finished}): "
-                f"growth {result.rss_growth_mib:+.1f} MiB"
+                f"  memory after warm-up ({m.samples} samples, idle after malloc_trim): traced (tracemalloc) median "
+                f"{m.traced_first_mib:.1f} MiB first third, {m.traced_last_mib:.1f} MiB last third "
+                f"({m.traced_growth_mib:+.1f}); resident {m.rss_first_mib:.1f} -> {m.rss_last_mib:.1f} MiB, "
+                f"{m.rss_slope_mib:+.2f} MiB per job from job {m.rss_from_n}"
             )
         p("  rss when idle (jobs: MiB): " + ", ".join(f"{x.finished}: {x.rss_mib:.1f}" for x in result.idle_samples))
         step = max(1, len(s) // 20)
@@ -634,7 +636,18 @@ def main(argv: list[str] | None = None) -> int:
         help=f"the fault kinds, in turn (default {','.join(DEFAULT_FAULTS)})",
     )
     parser.add_argument("--warmup", type=int, default=20, help="jobs before memory growth counts (default 20)")
-    parser.add_argument("--rss-bound-mib", type=float, default=20.0, help="allowed growth after warm-up (MiB)")
+    parser.add_argument(
+        "--traced-bound-mib",
+        type=float,
+        default=TRACED_BOUND_MIB,
+        help=f"allowed growth of live Python memory after warm-up, MiB (default {TRACED_BOUND_MIB:g})",
+    )
+    parser.add_argument(
+        "--rss-slope-mib",
+        type=float,
+        default=RSS_SLOPE_BOUND_MIB,
+        help=f"allowed resident growth per job over the last half, MiB (default {RSS_SLOPE_BOUND_MIB:g})",
+    )
     parser.add_argument("--no-sigterm-probe", action="store_true", help="SIGTERM the idle daemon, not mid-weld")
     parser.add_argument("--workdir", default=None, help="keep the config copy, journal and daemon log here")
     parser.add_argument("--in-process", action="store_true", help="the runner alone in this process (no daemon)")
@@ -651,7 +664,8 @@ def main(argv: list[str] | None = None) -> int:
         weld_every=args.weld_every,
         faults=tuple(f.strip() for f in args.faults.split(",") if f.strip()),
         warmup=args.warmup,
-        rss_bound_mib=args.rss_bound_mib,
+        traced_bound_mib=args.traced_bound_mib,
+        rss_slope_bound_mib=args.rss_slope_mib,
         sigterm_mid_weld=not args.no_sigterm_probe,
         every=args.every,
         workdir=args.workdir,

@@ -21,9 +21,10 @@ sys.path.insert(0, str(REPO))
 
 # ================================================================================================ the daemon
 class ServedDaemon:
-    """``weldcell serve --config CONFIG --port 0 --sim-faults`` as a child process; its output goes to ``log``."""
+    """``weldcell serve --config CONFIG --port 0 --sim-faults`` as a child process; its output goes to ``log``; with
+    ``memory_log`` it records its memory after each job there (``WELDCELL_MEMORY_SNAPSHOTS``, cell/memory.py)."""
 
-    def __init__(self, config: Path, log: Path) -> None:
+    def __init__(self, config: Path, log: Path, *, memory_log: Path | None = None) -> None:
         exe = Path(sys.executable).with_name("weldcell")
         cmd = [str(exe)] if exe.is_file() else [sys.executable, "-m", "cell.cli"]
         self.cmd = [*cmd, "serve", "--config", str(config), "--port", "0", "--sim-faults"]
@@ -31,7 +32,11 @@ class ServedDaemon:
         self.proc = subprocess.Popen(
             self.cmd,
             cwd=REPO,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            env={
+                **os.environ,
+                "PYTHONUNBUFFERED": "1",
+                **({"WELDCELL_MEMORY_SNAPSHOTS": str(memory_log)} if memory_log is not None else {}),
+            },
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
