@@ -13,6 +13,7 @@ import pytest
 
 from cell.memory import (
     MEMORY_SNAPSHOTS_ENV,
+    MemoryLog,
     limit_malloc_arenas,
     memory_log_from_env,
     release_freed_memory,
@@ -52,8 +53,7 @@ def test_the_memory_log_is_off_unless_the_environment_names_its_file(tmp_path: P
 @linux
 def test_each_record_has_the_live_python_memory_the_resident_size_and_the_largest_site(tmp_path: Path) -> None:
     was_tracing = tracemalloc.is_tracing()
-    log = memory_log_from_env({MEMORY_SNAPSHOTS_ENV: str(tmp_path / "memory.jsonl")})
-    assert log is not None
+    log = MemoryLog(tmp_path / "memory.jsonl", snapshot_every=2)
     try:
         first = log.record(1)
         kept = np.empty(8 * 1024 * 1024 // 8)  # 8 MiB that stay alive: a leak as the log must show it
@@ -71,6 +71,8 @@ def test_each_record_has_the_live_python_memory_the_resident_size_and_the_larges
     assert third["traced_mib"] - first["traced_mib"] == pytest.approx(0.0, abs=0.5)
     assert second["top"][0][0].endswith("test_memory.py:" + str(_line_of("kept = np.empty")))
     assert second["top"][0][1] == pytest.approx(8.0, abs=0.01)
+    assert "top" in first and "top" not in third  # the largest sites on the first line and every second one
+    assert 0 <= second["snapshot_s"] < 10
     rss = resident_mib()
     assert rss is not None and second["rss_mib"] is not None and 0 < second["rss_mib"] <= rss + 64
 
