@@ -76,7 +76,8 @@ class MemoryLog:
 
     Starts ``tracemalloc`` (one frame per allocation: the site, not the stack) unless it runs already. Each line:
     ``{"n": jobs recorded so far, "job_id", "t_s": seconds since this log started, "traced_mib": live Python
-    memory, "traced_peak_mib", "rss_mib"}``; the first line and every ``snapshot_every``-th also ``"top": [[file:line,
+    memory, "traced_peak_mib", "tracemalloc_mib": tracemalloc's own tables (in the resident size, not in the
+    traced), "rss_mib"}``; the first line and every ``snapshot_every``-th also ``"top": [[file:line,
     MiB], ...]`` the ``top`` largest sites and ``"snapshot_s"``, what that took. A snapshot walks every traced block
     holding the GIL (seconds in a daemon that has imported Open3D): taken after every job it held up the HTTP
     requests that time a fault's arc-off. Safe to call from any thread (one at a time)."""
@@ -104,6 +105,7 @@ class MemoryLog:
                 "t_s": round(time.monotonic() - self._t0, 3),
                 "traced_mib": round(traced / MIB, 3),
                 "traced_peak_mib": round(peak / MIB, 3),
+                "tracemalloc_mib": round(tracemalloc.get_tracemalloc_memory() / MIB, 3),
                 "rss_mib": resident_mib(),
             }
             tracemalloc.reset_peak()

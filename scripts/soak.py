@@ -479,8 +479,13 @@ class DaemonSoak:
         self, memory_log: Path, *, warmup: int, traced_bound_mib: float, rss_slope_bound_mib: float
     ) -> None:
         """The memory rule (scripts/soak_memory.py) on the daemon's ``memory_log``, and the idle thread count."""
+        records = read_memory_log(memory_log)
+        deadline = time.monotonic() + 10.0
+        while len(records) < self.finished and time.monotonic() < deadline:
+            time.sleep(0.2)  # the worker writes the last job's line once it has let go of that job
+            records = read_memory_log(memory_log)
         verdict = judge_memory(
-            read_memory_log(memory_log),
+            records,
             warmup=warmup,
             traced_bound_mib=traced_bound_mib,
             rss_slope_bound_mib=rss_slope_bound_mib,
