@@ -56,6 +56,7 @@ stay welded and the ones after follow. Abort (from ``paused``) retracts the torc
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import re
@@ -540,6 +541,9 @@ class Daemon:
         self._queue.put(None)
         self._worker.join(timeout=30.0)
         self.arc_on_at_exit = self._confirm_arc_off()
+        if self._memory_log is not None:
+            with contextlib.suppress(Exception):  # a measurement must never stop the shutdown
+                self._memory_log.close()
         self.http.stop()
         if self._own_cell:
             self.cell.close()

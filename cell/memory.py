@@ -77,15 +77,15 @@ class MemoryLog:
     Starts ``tracemalloc`` (one frame per allocation: the site, not the stack) unless it runs already. Each line:
     ``{"n": jobs recorded so far, "job_id", "t_s": seconds since this log started, "traced_mib": live Python
     memory, "traced_peak_mib", "tracemalloc_mib": tracemalloc's own tables (in the resident size, not in the
-    traced), "rss_mib"}``; the first line and every ``snapshot_every``-th also ``"top": [[file:line,
-    MiB], ...]`` the ``top`` largest sites and ``"snapshot_s"``, what that took. A snapshot walks every traced block
-    holding the GIL (seconds in a daemon that has imported Open3D): taken after every job it held up the HTTP
-    requests that time a fault's arc-off. Safe to call from any thread (one at a time)."""
+    traced), "rss_mib"}``; the first line also ``"top": [[file:line, MiB], ...]`` the ``top`` largest sites and
+    ``"snapshot_s"``, what that took, and :meth:`close` writes a last line ``{"final": true, ...}`` with them. A
+    snapshot walks every traced block holding the GIL (about a second in the daemon, which has imported Open3D):
+    taken after a job, it held up the HTTP requests that time a fault's arc-off (the next job's deadlines, had one
+    been queued). Safe to call from any thread (one at a time)."""
 
-    def __init__(self, path: str | os.PathLike[str], *, top: int = 5, snapshot_every: int = 10) -> None:
+    def __init__(self, path: str | os.PathLike[str], *, top: int = 5) -> None:
         self.path = Path(path)
         self.top = top
-        self.snapshot_every = snapshot_every
         self._n = 0
         self._t0 = time.monotonic()
         self._lock = threading.Lock()
@@ -109,14 +109,37 @@ class MemoryLog:
                 "rss_mib": resident_mib(),
             }
             tracemalloc.reset_peak()
-            if self._n == 1 or (self.snapshot_every > 0 and self._n % self.snapshot_every == 0):
-                t0 = time.monotonic()
-                stats = tracemalloc.take_snapshot().statistics("lineno")[: self.top]
-                entry["top"] = [[f"{s.traceback[0]}", round(s.size / MIB, 3)] for s in stats]
-                entry["snapshot_s"] = round(time.monotonic() - t0, 3)
-            with self.path.open("a", encoding="utf-8") as f:
-                f.write(json.dumps(entry) + "\n")
+            if self._n == 1:
+                entry.update(self._top_sites())
+            self._write(entry)
             return entry
+
+    def close(self) -> dict[str, Any]:
+        """The last line (the largest sites now, to compare with the first line's) when the daemon stops."""
+        with self._lock:
+            traced, _peak = tracemalloc.get_traced_memory()
+            entry: dict[str, Any] = {
+                "final": True,
+                "jobs": self._n,
+                "t_s": round(time.monotonic() - self._t0, 3),
+                "traced_mib": round(traced / MIB, 3),
+                "rss_mib": resident_mib(),
+                **self._top_sites(),
+            }
+            self._write(entry)
+            return entry
+
+    def _top_sites(self) -> dict[str, Any]:
+        t0 = time.monotonic()
+        stats = tracemalloc.take_snapshot().statistics("lineno")[: self.top]
+        return {
+            "top": [[f"{s.traceback[0]}", round(s.size / MIB, 3)] for s in stats],
+            "snapshot_s": round(time.monotonic() - t0, 3),
+        }
+
+    def _write(self, entry: dict[str, Any]) -> None:
+        with self.path.open("a", encoding="utf-8") as f:
+            f.write(json.dumps(entry) + "\n")
 
 
 def memory_log_from_env(environ: Mapping[str, str] = os.environ) -> MemoryLog | None:

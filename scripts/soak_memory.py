@@ -51,10 +51,12 @@ class MemoryVerdict:
 
 
 def read_memory_log(path: Path) -> list[dict[str, Any]]:
-    """The daemon's memory lines (one per job it ran, in order); [] when the file is missing."""
+    """The daemon's memory lines of its jobs (one per job it ran, in order; not the last line it writes when it
+    stops); [] when the file is missing."""
     if not path.is_file():
         return []
-    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+    lines = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+    return [line for line in lines if "n" in line]
 
 
 def robust_slope(xs: list[float], ys: list[float]) -> float:

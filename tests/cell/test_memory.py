@@ -53,26 +53,29 @@ def test_the_memory_log_is_off_unless_the_environment_names_its_file(tmp_path: P
 @linux
 def test_each_record_has_the_live_python_memory_the_resident_size_and_the_largest_site(tmp_path: Path) -> None:
     was_tracing = tracemalloc.is_tracing()
-    log = MemoryLog(tmp_path / "memory.jsonl", snapshot_every=2)
+    log = MemoryLog(tmp_path / "memory.jsonl")
     try:
         first = log.record(1)
         kept = np.empty(8 * 1024 * 1024 // 8)  # 8 MiB that stay alive: a leak as the log must show it
         kept.fill(1.0)
         second = log.record(2)
+        final = log.close()
         del kept
         third = log.record(None)
     finally:
         if not was_tracing:
             tracemalloc.stop()
     lines = [json.loads(line) for line in log.path.read_text().splitlines()]
-    assert lines == [first, second, third]
+    assert lines == [first, second, final, third]
+    lines.remove(final)
     assert [e["n"] for e in lines] == [1, 2, 3] and [e["job_id"] for e in lines] == [1, 2, None]
     assert second["traced_mib"] - first["traced_mib"] == pytest.approx(8.0, abs=0.5)
     assert third["traced_mib"] - first["traced_mib"] == pytest.approx(0.0, abs=0.5)
-    assert second["top"][0][0].endswith("test_memory.py:" + str(_line_of("kept = np.empty")))
-    assert second["top"][0][1] == pytest.approx(8.0, abs=0.01)
-    assert "top" in first and "top" not in third  # the largest sites on the first line and every second one
-    assert 0 <= second["snapshot_s"] < 10
+    # the largest sites: on the first line and on the last one (close), not on every job's
+    assert "top" in first and "top" not in second and "top" not in third
+    assert final["final"] is True and final["jobs"] == 2 and 0 <= final["snapshot_s"] < 10
+    assert final["top"][0][0].endswith("test_memory.py:" + str(_line_of("kept = np.empty")))
+    assert final["top"][0][1] == pytest.approx(8.0, abs=0.01)
     rss = resident_mib()
     assert rss is not None and second["rss_mib"] is not None and 0 < second["rss_mib"] <= rss + 64
 
