@@ -16,7 +16,7 @@ from typing import Any
 from drivers.priority import enter_io_process
 from sim_fakes.fake_fanuc import FakeFanucController
 from sim_fakes.fanuc_program import HeartbeatProgram, InstructionRecord
-from sim_fakes.process_fake import ProcessFake, serve_handle
+from sim_fakes.process_fake import ServerFake, serve_handle
 
 HANDLE_METHODS = frozenset(
     {
@@ -51,7 +51,7 @@ def _serve(conn: Connection, host: str, port: int, heartbeat: HeartbeatProgram |
         fake.stop()
 
 
-class FakeFanucProcess(ProcessFake):
+class FakeFanucProcess(ServerFake):
     """A :class:`FakeFanucController` (``host``, ``port``, ``heartbeat`` as there) in a child process.
 
     Implements :class:`sim_fakes.faults.FaultInjectable`; :attr:`port` is the bound RMI port once started. Each
@@ -60,6 +60,7 @@ class FakeFanucProcess(ProcessFake):
     """
 
     supported_faults = FakeFanucController.supported_faults
+    handle_methods = HANDLE_METHODS
 
     def __init__(
         self,
@@ -79,21 +80,6 @@ class FakeFanucProcess(ProcessFake):
             startup_timeout_s=startup_timeout_s,
             request_timeout_s=request_timeout_s,
         )
-
-    def _on_ready(self, detail: Any) -> None:
-        self.port = int(detail)
-
-    def _call(self, name: str, *args: Any, **kwargs: Any) -> Any:
-        if name not in HANDLE_METHODS:
-            raise AttributeError(f"the fake FANUC's handle has no method {name!r}")
-        return self._request(name, args, kwargs)
-
-    # FaultInjectable
-    def inject(self, fault: str, **params: Any) -> None:
-        self._call("inject", fault, **params)
-
-    def clear_faults(self) -> None:
-        self._call("clear_faults")
 
     # what the fake saw and is doing (see FakeFanucController)
     def records(self) -> list[InstructionRecord]:

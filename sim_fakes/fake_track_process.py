@@ -16,7 +16,7 @@ from typing import Any
 
 from drivers.priority import enter_io_process
 from sim_fakes.fake_track import FakeTrack, MoveRecord
-from sim_fakes.process_fake import ProcessFake, serve_handle
+from sim_fakes.process_fake import ServerFake, serve_handle
 
 HANDLE_METHODS = frozenset({"inject", "clear_faults", "position_m", "snapshot", "moves", "refused"})
 """The :class:`FakeTrack` methods the handle forwards (what the cell's tests and fault switch use)."""
@@ -37,7 +37,7 @@ def _serve(conn: Connection, host: str, port: int, settings: dict[str, Any]) -> 
         fake.stop()
 
 
-class FakeTrackProcess(ProcessFake):
+class FakeTrackProcess(ServerFake):
     """A :class:`FakeTrack` in a child process: ``host``, ``port``, ``unit_id``, ``counts_per_m`` and the keyword
     arguments ``settings`` (soft limits, speed and acceleration limits, window, start position, as
     :class:`FakeTrack` takes them, in SI).
@@ -48,6 +48,7 @@ class FakeTrackProcess(ProcessFake):
     """
 
     supported_faults = FakeTrack.supported_faults
+    handle_methods = HANDLE_METHODS
 
     def __init__(
         self,
@@ -71,21 +72,6 @@ class FakeTrackProcess(ProcessFake):
             startup_timeout_s=startup_timeout_s,
             request_timeout_s=request_timeout_s,
         )
-
-    def _on_ready(self, detail: Any) -> None:
-        self.port = int(detail)
-
-    def _call(self, name: str, *args: Any, **kwargs: Any) -> Any:
-        if name not in HANDLE_METHODS:
-            raise AttributeError(f"the fake track's handle has no method {name!r}")
-        return self._request(name, args, kwargs)
-
-    # FaultInjectable
-    def inject(self, fault: str, **params: Any) -> None:
-        self._call("inject", fault, **params)
-
-    def clear_faults(self) -> None:
-        self._call("clear_faults")
 
     # what the drive is doing and did (see FakeTrack)
     def position_m(self) -> float:

@@ -110,6 +110,29 @@ class ProcessFake:
         return result
 
 
+class ServerFake(ProcessFake):
+    """A process fake that serves a network port (its ``ready`` detail: the bound port, in :attr:`port`) and whose
+    handle takes faults: requests go to the child's fake by method name, only those in ``handle_methods``."""
+
+    handle_methods: frozenset[str] = frozenset()
+    port: int = 0
+
+    def _on_ready(self, detail: Any) -> None:
+        self.port = int(detail)
+
+    def _call(self, name: str, *args: Any, **kwargs: Any) -> Any:
+        if name not in self.handle_methods:
+            raise AttributeError(f"{self._label}'s handle has no method {name!r}")
+        return self._request(name, args, kwargs)
+
+    # FaultInjectable
+    def inject(self, fault: str, **params: Any) -> None:
+        self._call("inject", fault, **params)
+
+    def clear_faults(self) -> None:
+        self._call("clear_faults")
+
+
 def serve_handle(conn: Connection, fake: Any, methods: frozenset[str], label: str) -> None:
     """The child's side once ``fake`` serves: answer ``(method, args, kwargs)`` requests with the result of that
     method of ``fake`` (only those in ``methods``) until ``("shutdown",)`` or until the parent goes away. The caller
