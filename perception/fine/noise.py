@@ -48,13 +48,10 @@ def local_planes(points: NDArray[np.floating], *, window_px: int) -> LocalPlanes
                                         borderType=cv2.BORDER_CONSTANT))  # fmt: skip
 
     n = box(valid.astype(np.float64))
-    s = box(q)
-    prods = np.stack([q[..., 0] * q[..., 0], q[..., 0] * q[..., 1], q[..., 0] * q[..., 2],
-                      q[..., 1] * q[..., 1], q[..., 1] * q[..., 2], q[..., 2] * q[..., 2]], axis=-1)  # fmt: skip
-    ss = np.stack([box(prods[..., k]) for k in range(6)], axis=-1)
     nn = np.maximum(n, 1.0)
-    m = s / nn[..., None]
-    c = ss / nn[..., None]
+    qx, qy, qz = (np.ascontiguousarray(q[..., k]) for k in range(3))  # contiguous planes: no copies in the filter
+    mx, my, mz = box(qx) / nn, box(qy) / nn, box(qz) / nn
+    m = np.stack([mx, my, mz], axis=-1)
     # the normal from the window means' central differences (a plane's means lie on it); the residual
     # variance about that plane is the quadratic form n^T C n (the eigen-solve would cost 4x more)
     st = max(1, window_px // 2)
@@ -65,15 +62,16 @@ def local_planes(points: NDArray[np.floating], *, window_px: int) -> LocalPlanes
     normal = np.cross(du, dv)
     with np.errstate(invalid="ignore", divide="ignore"):
         normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-    flip = np.einsum("hwk,hwk->hw", normal, np.where(valid[..., None], p, 0.0)) > 0
+    with np.errstate(invalid="ignore"):
+        flip = np.einsum("hwk,hwk->hw", normal, p) > 0  # NaN (an invalid pixel) is never > 0
     normal[flip] *= -1
     nx, ny, nz = normal[..., 0], normal[..., 1], normal[..., 2]
-    cxx = c[..., 0] - m[..., 0] ** 2
-    cxy = c[..., 1] - m[..., 0] * m[..., 1]
-    cxz = c[..., 2] - m[..., 0] * m[..., 2]
-    cyy = c[..., 3] - m[..., 1] ** 2
-    cyz = c[..., 4] - m[..., 1] * m[..., 2]
-    czz = c[..., 5] - m[..., 2] ** 2
+    cxx = box(qx * qx) / nn - mx**2
+    cxy = box(qx * qy) / nn - mx * my
+    cxz = box(qx * qz) / nn - mx * mz
+    cyy = box(qy * qy) / nn - my**2
+    cyz = box(qy * qz) / nn - my * mz
+    czz = box(qz * qz) / nn - mz**2
     var = nx * nx * cxx + ny * ny * cyy + nz * nz * czz + 2 * (nx * ny * cxy + nx * nz * cxz + ny * nz * cyz)
     total = np.maximum(cxx + cyy + czz, 1e-30)
     var = np.clip(var, 0.0, None)
