@@ -140,7 +140,6 @@ def inner_gap_seams(
     gp = params or InnerGapParams()
     H, W = full.shape[:2]
     out: list[SeamCurve] = []
-    rays = None
     for s in surfaces.surfaces:
         if s.kind != "plane" or s.label in support:
             continue
@@ -157,10 +156,9 @@ def inner_gap_seams(
         hy, hx = np.nonzero(hole)
         if len(hy) < 15:
             continue
-        if rays is None:
-            uu, vv = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
-            rays = np.dstack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy, np.ones_like(uu)])
-        r = rays[hy + y0, hx + x0]
+        # the hole pixels' rays (only theirs: the whole image's would cost more than the rest of the step)
+        uu, vv = (hx + x0).astype(np.float64), (hy + y0).astype(np.float64)
+        r = np.stack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy, np.ones_like(uu)], axis=1)
         g_all = r * (-s.offset / (r @ s.normal))[:, None]  # the hole pixels' rays met with the plate's plane
         for g, u in _gap_lines(g_all, s.normal, gp, rng=np.random.default_rng(0)):
             seam = _gap_between(g, u, s, pts[on_plane], pts[np.isfinite(z)], noise_full, gp)
