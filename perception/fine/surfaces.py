@@ -419,37 +419,56 @@ def _span_rad(c: Surface, q: FloatArray) -> tuple[float, FloatArray]:
 def _grow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
           sp: SurfaceParams) -> NDArray[np.int32]:  # fmt: skip
     """Ring by ring, unassigned valid pixels next to a surface join it when they lie on it within the noise
-    (the nearer surface wins where two could take a pixel)."""
+    (the nearer surface wins where two could take a pixel). A pixel's chance changes only when a neighbour
+    joins a surface, so each ring looks only at the free pixels beside the last ring's."""
     if not surfaces:
         return labels
     lab = labels.copy()
+    h, w = lab.shape
     valid = np.isfinite(p[..., 2])
-    pf = np.nan_to_num(p)
+    neighbours = ((0, -1), (0, 1), (-1, 0), (1, 0))  # the order ties are settled in
+    known = lab >= 0
+    beside = np.zeros_like(known)
+    for dy, dx in neighbours:
+        beside |= _shift(known, -dy, -dx, False)
+    ys, xs = np.nonzero(beside & valid & ~known)  # the first ring: every free pixel beside a surface
     for _ in range(sp.grow_rings):
-        free = valid & (lab < 0)
-        if not free.any():
+        if len(ys) == 0:
             break
-        best = np.full(lab.shape, np.inf)
-        best_lab = np.full(lab.shape, -1, np.int32)
-        for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-            cand = _shift(lab, dy, dx, -1)
-            m = free & (cand >= 0)
-            if not m.any():
-                continue
-            ys, xs = np.nonzero(m)
-            cl = cand[ys, xs]
+        q = p[ys, xs]
+        best = np.full(len(ys), np.inf)
+        best_lab = np.full(len(ys), -1, np.int32)
+        for dy, dx in neighbours:
+            ny, nx = ys + dy, xs + dx
+            ok = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
+            cand = np.full(len(ys), -1, np.int32)
+            cand[ok] = lab[ny[ok], nx[ok]]
             res = np.full(len(ys), np.inf)
-            for s_lab in np.unique(cl):
-                sel = cl == s_lab
-                res[sel] = np.abs(surfaces[int(s_lab)].residual(pf[ys[sel], xs[sel]]))
-            better = res < best[ys, xs]
-            best[ys[better], xs[better]] = res[better]
-            best_lab[ys[better], xs[better]] = cl[better]
-        take = free & (best_lab >= 0) & (best <= sp.grow_sigma * sigma)
+            for s_lab in np.unique(cand[cand >= 0]):
+                sel = cand == s_lab
+                res[sel] = np.abs(surfaces[int(s_lab)].residual(q[sel]))
+            better = res < best
+            best[better] = res[better]
+            best_lab[better] = cand[better]
+        take = (best_lab >= 0) & (best <= sp.grow_sigma * sigma[ys, xs])
         if not take.any():
             break
-        lab[take] = best_lab[take]
+        lab[ys[take], xs[take]] = best_lab[take]
+        ys, xs = _free_beside(ys[take], xs[take], lab, valid, neighbours)  # the next ring
     return lab
+
+
+def _free_beside(cy: NDArray[np.int64], cx: NDArray[np.int64], lab: NDArray[np.int32], valid: NDArray[np.bool_],
+                 neighbours: tuple[tuple[int, int], ...]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:  # fmt: skip
+    """The unlabelled valid pixels (rows, columns, in raster order) beside the pixels (cy, cx)."""
+    h, w = lab.shape
+    ys = np.concatenate([cy + dy for dy, _ in neighbours])
+    xs = np.concatenate([cx + dx for _, dx in neighbours])
+    inside = (ys >= 0) & (ys < h) & (xs >= 0) & (xs < w)
+    flat = np.unique(ys[inside] * w + xs[inside])
+    ys, xs = flat // w, flat % w
+    free = valid[ys, xs] & (lab[ys, xs] < 0)
+    return ys[free], xs[free]
 
 
 def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], normals: FloatArray,
