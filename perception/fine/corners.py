@@ -36,14 +36,14 @@ def join_corners(seams: list[SeamCurve], noise: NoiseModel) -> list[SeamCurve]:
             z = float(p[2])
             near = NEAR_SPACINGS * float(noise.spacing_m(z)) + 3.0 * float(noise.sigma_m(z))
             if np.linalg.norm(a.points[ea] - p) <= near and np.linalg.norm(b.points[eb] - p) <= near:
-                moves.append((i, ea % 2, j, eb % 2, p))
+                moves.append((i, ea, j, eb, p))
     # an end that meets more than one other seam (three faces meeting at a box's inside corner) is left as
     # it is: two seams' crossing is not the three planes' corner
     ends = [(i, ei) for i, ei, _, _, _ in moves] + [(j, ej) for _, _, j, ej, _ in moves]
     for i, ei, j, ej, p in moves:
         if ends.count((i, ei)) == 1 and ends.count((j, ej)) == 1:
-            out[i] = _with_end(out[i], -1 if ei else 0, p)
-            out[j] = _with_end(out[j], -1 if ej else 0, p)
+            out[i] = _with_end(out[i], ei, p)
+            out[j] = _with_end(out[j], ej, p)
     return out
 
 

@@ -49,19 +49,28 @@ def near_points(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatA
 def _near_box(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatArray,
               band_m: float) -> tuple[FloatArray, NDArray[np.int64]]:  # fmt: skip
     """:func:`near_points`, and each point's pixel (row, column) in ``full``."""
-    uv = intr.project(curve)
-    z = float(np.median(curve[:, 2]))
-    m = int(np.ceil(band_m * intr.fx / max(z, 1e-3))) + 2
-    H, W = full.shape[:2]
-    u0, u1 = int(max(np.floor(uv[:, 0].min()) - m, 0)), int(min(np.ceil(uv[:, 0].max()) + m + 1, W))
-    v0, v1 = int(max(np.floor(uv[:, 1].min()) - m, 0)), int(min(np.ceil(uv[:, 1].max()) + m + 1, H))
-    if u0 >= u1 or v0 >= v1:
+    box = _pixel_box(intr, curve, band_m, full.shape[:2])
+    if box is None:
         return np.zeros((0, 3)), np.zeros((0, 2), dtype=np.int64)
+    v0, v1, u0, u1 = box
     q = full[v0:v1, u0:u1].reshape(-1, 3)
     vv, uu = np.mgrid[v0:v1, u0:u1]
     ok = np.isfinite(q[:, 2])
     px = np.stack([vv.ravel()[ok], uu.ravel()[ok]], axis=1)
     return np.asarray(q[ok], dtype=np.float64), px
+
+
+def _pixel_box(intr: CameraIntrinsics, curve: FloatArray, margin_m: float, shape: tuple[int, ...], *,
+               factor: int = 1) -> tuple[int, int, int, int] | None:  # fmt: skip
+    """(row0, row1, col0, col1) of the image box around ``curve``'s pixels grown by ``margin_m`` at its range
+    (plus two pixels), in an image of ``shape`` subsampled by ``factor``; None when it is empty."""
+    uv = intr.project(curve) / factor
+    z = float(np.median(curve[:, 2]))
+    m = int(np.ceil(margin_m * intr.fx / factor / max(z, 1e-3))) + 2
+    h, w = shape[:2]
+    c0, c1 = int(max(np.floor(uv[:, 0].min()) - m, 0)), int(min(np.ceil(uv[:, 0].max()) + m + 1, w))
+    r0, r1 = int(max(np.floor(uv[:, 1].min()) - m, 0)), int(min(np.ceil(uv[:, 1].max()) + m + 1, h))
+    return None if c0 >= c1 or r0 >= r1 else (r0, r1, c0, c1)
 
 
 def _others_residual(q: FloatArray, px: NDArray[np.int64], surfaces: SurfaceSet, pair: tuple[int, int],
@@ -134,14 +143,10 @@ def _face_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: Su
     boundary (a face is rounded or blurred at its edges), and their labels. Fragments of one face that the
     segmentation left apart are all among them."""
     f = surfaces.factor
-    h, w = surfaces.labels.shape
-    uv = intr.project(curve) / f
-    z = float(np.median(curve[:, 2]))
-    m = int(np.ceil(reach_m * intr.fx / f / max(z, 1e-3))) + 2
-    c0, c1 = int(max(np.floor(uv[:, 0].min()) - m, 0)), int(min(np.ceil(uv[:, 0].max()) + m + 1, w))
-    r0, r1 = int(max(np.floor(uv[:, 1].min()) - m, 0)), int(min(np.ceil(uv[:, 1].max()) + m + 1, h))
-    if c0 >= c1 or r0 >= r1:
+    box = _pixel_box(intr, curve, reach_m, surfaces.labels.shape, factor=f)
+    if box is None:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
+    r0, r1, c0, c1 = box
     lab = np.pad(surfaces.labels[r0:r1, c0:c1], 1, mode="edge")
     inner = lab[1:-1, 1:-1]
     interior = (inner >= 0) & (lab[:-2, 1:-1] == inner) & (lab[2:, 1:-1] == inner)
@@ -153,15 +158,6 @@ def _face_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: Su
     along = (q - curve[0]) @ (chord / max(length, 1e-9))
     ok = np.isfinite(q[:, 2]) & (along >= 0.0) & (along <= length)  # beside the seam, not past its ends
     return q[ok], inner[rr[ok], cc[ok]]
-
-
-def _fit_plane_weighted(p: FloatArray, w: FloatArray) -> tuple[FloatArray, float]:
-    """Weighted least-squares plane of (N, 3) points: unit normal (towards the camera) and offset."""
-    c = (w[:, None] * p).sum(axis=0) / w.sum()
-    d = p - c
-    _, v = np.linalg.eigh((w[:, None] * d).T @ d)
-    n = v[:, 0] if v[:, 0] @ c <= 0 else -v[:, 0]
-    return n, -float(n @ c)
 
 
 def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B: Surface, noise: NoiseModel,
@@ -271,11 +267,12 @@ def _beyond_band(far: FloatArray, labels: NDArray[np.int32], sig: FloatArray, pl
 
 def _fragments(labels: NDArray[np.int32], res: FloatArray, sig: FloatArray, own: int) -> NDArray[np.bool_]:
     """Per point: whether its surface is ``own`` or a fragment of the same face (most of its points lie
-    within the noise of the face's current plane: median |residual| under 1.5 sigma)."""
+    within the noise of the face's current plane: median |residual| under COPY_SIGMA, the rule of
+    :func:`_others_residual`)."""
     out = labels == own
     for k in np.unique(labels):
         m = labels == k
-        if k != own and float(np.median(res[m] / sig[m])) < 1.5:
+        if k != own and float(np.median(res[m] / sig[m])) < COPY_SIGMA:
             out |= m
     return out
 
@@ -283,7 +280,7 @@ def _fragments(labels: NDArray[np.int32], res: FloatArray, sig: FloatArray, own:
 def _refit(S: Surface, S0: Surface, near: FloatArray, far: FloatArray, weight_far: float) -> Surface:
     """``S`` refitted on ``near`` (weight 1) and ``far`` (weight ``weight_far``), normal on ``S0``'s side."""
     pts = np.concatenate([near, far])
-    n, off = _fit_plane_weighted(pts, np.concatenate([np.ones(len(near)), np.full(len(far), weight_far)]))
+    n, off, _ = _fit_plane(pts, np.concatenate([np.ones(len(near)), np.full(len(far), weight_far)]))
     if n @ S0.normal < 0:
         n, off = -n, -off
     return replace(S, normal=n, offset=off)

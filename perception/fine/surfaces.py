@@ -47,11 +47,18 @@ class SurfaceParams:
     narrow_min_width_px: float = 0.8
 
 
-def _fit_plane(p: FloatArray) -> tuple[FloatArray, float, float]:
-    """Least-squares plane of (N, 3) points: unit normal (towards the camera), offset, RMS residual."""
-    c = p.mean(axis=0)
-    q = p - c
-    w, v = np.linalg.eigh(q.T @ q / max(len(p), 1))
+def _fit_plane(p: FloatArray, weights: FloatArray | None = None) -> tuple[FloatArray, float, float]:
+    """Least-squares plane of (N, 3) points, each weighted by ``weights`` when given: unit normal (towards the
+    camera), offset, RMS residual."""
+    if weights is None:
+        c = p.mean(axis=0)
+        q = p - c
+        w, v = np.linalg.eigh(q.T @ q / max(len(p), 1))
+    else:
+        c = (weights[:, None] * p).sum(axis=0) / weights.sum()
+        q = p - c
+        w, v = np.linalg.eigh((weights[:, None] * q).T @ q)
+        w = w / weights.sum()
     n = v[:, 0]
     if n @ c > 0:  # towards the camera
         n = -n
