@@ -16,13 +16,9 @@ sys.path.insert(0, str(REPO))
 # ================================================================================================ in-process
 def rss_mb() -> float:
     """Resident set size of this process now, MiB (Linux /proc; 0 elsewhere)."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return 0.0
+    from cell.memory import resident_mib
+
+    return resident_mib() or 0.0
 
 
 def run_in_process_soak(config_path: str, job_path: str, *, jobs: int, weld: bool, every: int) -> int:
