@@ -20,12 +20,15 @@ from perception.capture import CameraIntrinsics
 from perception.fine.cylinder import axis_basis, circle_across
 from perception.fine.folds import plane_line, ring_points
 from perception.fine.root import open_root
-from perception.fine.runs import covered_runs
+from perception.fine.runs import covered_runs, trim_stray_tails
 from perception.fine.surfaces import _fit_plane
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
 
 COPY_SIGMA = 1.5  # see _others_residual
 ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
+
+
+TUKEY_C = 4.685  # Tukey's biweight constant: 95% efficiency on normal noise
 
 
 @dataclass(frozen=True)
@@ -280,10 +283,29 @@ def _fragments(labels: NDArray[np.int32], res: FloatArray, sig: FloatArray, own:
 def _refit(S: Surface, S0: Surface, near: FloatArray, far: FloatArray, weight_far: float) -> Surface:
     """``S`` refitted on ``near`` (weight 1) and ``far`` (weight ``weight_far``), normal on ``S0``'s side."""
     pts = np.concatenate([near, far])
-    n, off, _ = _fit_plane(pts, np.concatenate([np.ones(len(near)), np.full(len(far), weight_far)]))
+    n, off = _robust_plane_fit(pts, np.concatenate([np.ones(len(near)), np.full(len(far), weight_far)]))
     if n @ S0.normal < 0:
         n, off = -n, -off
     return replace(S, normal=n, offset=off)
+
+
+def _robust_plane_fit(p: FloatArray, weights: FloatArray, *, iterations: int = 8) -> tuple[FloatArray, float]:
+    """The plane of ``p`` (each point weighted by ``weights``) fitted with Tukey's biweight: a point's weight
+    falls smoothly to zero at TUKEY_C robust sigmas (the residuals' MAD), so that the few points of another
+    surface that pass the gates (the last pixel row of a convex edge beside a face seen a few pixels wide)
+    do not tilt the plane, while the face's own noise keeps 95% of the least-squares efficiency."""
+    n, off, _ = _fit_plane(p, weights)
+    for _ in range(iterations):
+        r = p @ n + off
+        scale = 1.4826 * float(np.median(np.abs(r)))
+        if scale <= 0.0:
+            break
+        x = r / (TUKEY_C * scale)
+        w = weights * np.where(np.abs(x) < 1.0, (1.0 - x * x) ** 2, 0.0)
+        if w.sum() <= 0.0 or np.count_nonzero(w) < 10:
+            break
+        n, off, _ = _fit_plane(p, w)
+    return n, off
 
 
 def _short_of_far_edge(d: FloatArray, on: NDArray[np.bool_], margin: FloatArray, band_m: float) -> NDArray[np.bool_]:
@@ -353,8 +375,9 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
     tb_r = tb[(tb >= lo + r0 * rp.end_bin_m) & (tb < lo + r1 * rp.end_bin_m)]
     if ta_r.size == 0 or tb_r.size == 0:
         return None
-    s0 = max(float(ta_r.min()), float(tb_r.min()))
-    s1 = min(float(ta_r.max()), float(tb_r.max()))
+    ta_r, tb_r = trim_stray_tails(np.sort(ta_r)), trim_stray_tails(np.sort(tb_r))
+    s0 = max(float(ta_r[0]), float(tb_r[0]))
+    s1 = min(float(ta_r[-1]), float(tb_r[-1]))
     if s1 - s0 < 0.005:
         return None
     return np.array([line0 + s0 * u, line0 + s1 * u])
