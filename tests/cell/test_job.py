@@ -168,6 +168,9 @@ def test_prompts_come_from_a_file_relative_to_the_job(tmp_path: Path) -> None:
 def test_detection_and_welding_tables_map_to_the_library_parameters() -> None:
     p = detect_params(DetectionConfig(voxel_m=0.004, crop=False, z_range_m=[0.2, 1.5], method="paper"))
     assert (p.voxel_m, p.crop, p.z_range_m, p.method) == (0.004, False, (0.2, 1.5), "paper")
+    assert detect_params(DetectionConfig(method="surfaces")).method == "surfaces"
+    with pytest.raises(ValueError, match="surfaces"):
+        DetectionConfig(method="best")  # type: ignore[arg-type]
     params = weld_params(WeldingConfig(work_angle_deg=30.0), WeldingConfig(arc_output=3), SeamFilter())
     assert params.work_angle_rad == pytest.approx(math.pi / 6) and params.arc_do_index == 3
 
