@@ -29,6 +29,10 @@ class MergeParams:
     near_m: float = 0.003  # the faces' points within this (plus noise) of the line count as reaching it
     bin_m: float = 0.002
     min_cover: float = 0.6  # share of the stretch's bins where both faces reach the line
+    short_gap_m: float = 0.006  # a shorter stretch joins two pieces when both faces and nothing else are in it
+    interrupt_share: float = 0.3  # ... nothing else: less than this share of the points there off both faces
+    twin_offset_m: float = 0.003  # two seams on a shared face this close (or six sigma) along most of one are one
+    twin_angle_rad: float = np.radians(6.0)  # ... when their directions agree this well
 
 
 def merge_collinear(
@@ -58,7 +62,35 @@ def merge_collinear(
         if i != members[0]:
             continue
         out.append(c if len(members) == 1 else _joined([curves[m] for m in members]))
-    return out
+    return _without_overlapping_twins(out, noise, mp)
+
+
+def _without_overlapping_twins(curves: list[SeamCurve], noise: NoiseModel, mp: MergeParams) -> list[SeamCurve]:
+    """``curves`` less each straight seam that runs along another one on a face they share, over most of its
+    length: one face meets one other face along one line, so the two are one joint seen twice (the other face's
+    fragment, fitted on a few pixels, tilted and met the shared face a millimetre or two away). The better
+    supported of the two stays."""
+    lines = [i for i, c in enumerate(curves) if c.kind == "linear" and len(c.points) >= 2]
+    drop: set[int] = set()
+    for k, i in enumerate(lines):
+        for j in lines[k + 1 :]:
+            a, b = curves[i], curves[j]
+            if i in drop or j in drop or a.joint != b.joint or not set(a.surfaces) & set(b.surfaces):
+                continue
+            (short, s_i), (long_, l_i) = sorted(((a, i), (b, j)), key=lambda x: _direction(x[0])[2])
+            p0, u, length = _direction(long_)
+            if abs(float(_direction(short)[1] @ u)) < np.cos(mp.twin_angle_rad):
+                continue
+            z = float(np.median(short.points[:, 2]))
+            within = max(mp.twin_offset_m, 6.0 * float(noise.sigma_m(z)))
+            probe = short.points[0] + np.linspace(0.0, 1.0, 21)[:, None] * (short.points[-1] - short.points[0])
+            d = probe - p0
+            t = d @ u
+            off = np.linalg.norm(d - np.outer(t, u), axis=1)
+            along = (t >= 0.0) & (t <= length) & (off <= within)
+            if along.mean() >= 0.5:
+                drop.add(s_i if short.support <= long_.support else l_i)
+    return [c for i, c in enumerate(curves) if i not in drop]
 
 
 def _direction(c: SeamCurve) -> tuple[FloatArray, FloatArray, float]:
@@ -102,31 +134,57 @@ def _one_seam(a: SeamCurve, b: SeamCurve, full: NDArray[np.float32], intr: Camer
     if gap <= mp.bin_m:
         return True  # touching or overlapping pieces: nothing between them to check
     longer = a if la >= lb else b
+    if gap <= mp.short_gap_m:
+        # a stretch a few of the faces' samples long is too short to show them reaching the line in every bin
+        # (a face seen obliquely has holes this long): both faces are in it, and no other body
+        return _faces_present(pa + lo * ua, pa + hi * ua, ua, longer, full, intr, noise, mp)
     return _faces_reach(pa + lo * ua, pa + hi * ua, ua, longer, full, intr, noise, mp)
+
+
+def _stretch_points(g0: FloatArray, g1: FloatArray, u: FloatArray, full: NDArray[np.float32], intr: CameraIntrinsics,
+                    noise: NoiseModel, mp: MergeParams) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+    """The points near the line along the stretch g0-g1 (within ``near_m`` plus three sigma), as offsets from
+    ``g0``, and their sigma."""
+    q = near_points(full, intr, np.array([g0, g1]), mp.near_m + 0.004)
+    d = q - g0
+    t = d @ u
+    length = float(np.linalg.norm(g1 - g0))
+    sig = noise.sigma_m(q[:, 2])
+    dist = np.linalg.norm(d - np.outer(t, u), axis=1)
+    keep = (t >= 0.0) & (t <= length) & (dist <= mp.near_m + 3.0 * sig)
+    return d[keep], sig[keep]
+
+
+def _on_faces(d: FloatArray, sig: FloatArray, c: SeamCurve) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Per point (offsets ``d`` from the line): on face a and clearly off face b, and the other way round."""
+    ra, rb = np.abs(d @ c.normals_a[0]), np.abs(d @ c.normals_b[0])
+    return (ra <= 3.0 * sig) & (rb > 3.0 * sig), (rb <= 3.0 * sig) & (ra > 3.0 * sig)
+
+
+def _faces_present(g0: FloatArray, g1: FloatArray, u: FloatArray, c: SeamCurve, full: NDArray[np.float32],
+                   intr: CameraIntrinsics, noise: NoiseModel, mp: MergeParams) -> bool:  # fmt: skip
+    """Whether both of ``c``'s faces have points at the line along the stretch g0-g1 and nothing else stands
+    there: fewer than ``interrupt_share`` of the points off both faces (a crossing plate's sides)."""
+    d, sig = _stretch_points(g0, g1, u, full, intr, noise, mp)
+    on_a, on_b = _on_faces(d, sig, c)
+    off_both = (np.abs(d @ c.normals_a[0]) > 3.0 * sig) & (np.abs(d @ c.normals_b[0]) > 3.0 * sig)
+    interrupted = int(off_both.sum()) >= max(3, int(np.ceil(mp.interrupt_share * len(d))))
+    return bool(on_a.any() and on_b.any() and not interrupted)
 
 
 def _faces_reach(g0: FloatArray, g1: FloatArray, u: FloatArray, c: SeamCurve, full: NDArray[np.float32],
                  intr: CameraIntrinsics, noise: NoiseModel, mp: MergeParams) -> bool:  # fmt: skip
     """Whether both of ``c``'s faces have points close to the line along most of the stretch g0-g1."""
-    q = near_points(full, intr, np.array([g0, g1]), mp.near_m + 0.004)
-    if len(q) == 0:
+    d, sig = _stretch_points(g0, g1, u, full, intr, noise, mp)
+    if len(d) == 0:
         return False
-    d = q - g0
     t = d @ u
-    length = float(np.linalg.norm(g1 - g0))
-    inside = (t >= 0.0) & (t <= length)
-    q, d, t = q[inside], d[inside], t[inside]
-    dist = np.linalg.norm(d - np.outer(t, u), axis=1)
-    sig = noise.sigma_m(q[:, 2])
-    close = dist <= mp.near_m + 3.0 * sig
-    bins = max(1, int(np.ceil(length / mp.bin_m)))
+    bins = max(1, int(np.ceil(float(np.linalg.norm(g1 - g0)) / mp.bin_m)))
     k = np.clip((t / mp.bin_m).astype(int), 0, bins - 1)
     covered = np.ones(bins, dtype=bool)
-    for n, other in ((c.normals_a[0], c.normals_b[0]), (c.normals_b[0], c.normals_a[0])):
-        on = np.abs(d @ n) <= 3.0 * sig  # on this face's plane through the line ...
-        off = np.abs(d @ other) > 3.0 * sig  # ... and clearly off the other's
+    for on in _on_faces(d, sig, c):  # on one face's plane through the line and clearly off the other's
         hit = np.zeros(bins, dtype=bool)
-        hit[k[on & off & close]] = True
+        hit[k[on]] = True
         covered &= hit
     return bool(covered.mean() >= mp.min_cover)
 
