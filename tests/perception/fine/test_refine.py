@@ -68,15 +68,20 @@ def test_the_whole_faces_average_out_a_stereo_cameras_correlated_noise() -> None
     assert np.mean(rms) < 5e-5
 
 
-def test_the_ends_of_a_seam_hold_where_one_face_is_seen_sparsely() -> None:
-    # a face seen obliquely leaves about one point per millimetre near the line: its random holes (several
-    # millimetres at times) are not its end; the seam runs the face's whole 60 mm, its ends within 4 mm (a
-    # few sample spacings of that face) on at least 15 of 20 draws (1 of 20 with 1 mm bins of 2 points each)
+def _floor_and_wall() -> tuple[NoiseModel, Surface, Surface, np.ndarray, float]:
+    """A floor at 0.8 m facing the camera and a wall standing on it along x (their fold: the x axis at 0.8 m)."""
     nm = NoiseModel(sigma_1m_m=0.0005, floor_m=1e-4, pixel_angle_rad=0.001)
     z0 = 0.8
     floor = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), z0, 3e-4, 1000, np.array([0.0, 0.02, z0]), z0)
     wall = Surface(1, "plane", np.array([0.0, 1.0, 0.0]), 0.0, 3e-4, 1000, np.array([0.0, 0.0, z0 - 0.02]), z0)
-    u = np.array([1.0, 0.0, 0.0])
+    return nm, floor, wall, np.array([1.0, 0.0, 0.0]), z0
+
+
+def test_the_ends_of_a_seam_hold_where_one_face_is_seen_sparsely() -> None:
+    # a face seen obliquely leaves about one point per millimetre near the line: its random holes (several
+    # millimetres at times) are not its end; the seam runs the face's whole 60 mm, its ends within 4 mm (a
+    # few sample spacings of that face) on at least 15 of 20 draws (1 of 20 with 1 mm bins of 2 points each)
+    nm, floor, wall, u, z0 = _floor_and_wall()
     whole = 0
     for seed in range(20):
         rng = np.random.default_rng(seed)
@@ -114,11 +119,7 @@ def test_a_few_points_of_another_surface_do_not_tilt_a_narrow_face() -> None:
 def test_stray_points_past_a_faces_end_do_not_carry_the_seam_out() -> None:
     # two faces along 60 mm of line, and three flying pixels near the line 4-5 mm past the wall's end: the
     # seam ends where the wall does (before: where the strays are)
-    nm = NoiseModel(sigma_1m_m=0.0005, floor_m=1e-4, pixel_angle_rad=0.001)
-    z0 = 0.8
-    floor = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), z0, 3e-4, 1000, np.array([0.0, 0.02, z0]), z0)
-    wall = Surface(1, "plane", np.array([0.0, 1.0, 0.0]), 0.0, 3e-4, 1000, np.array([0.0, 0.0, z0 - 0.02]), z0)
-    u = np.array([1.0, 0.0, 0.0])
+    nm, floor, wall, u, z0 = _floor_and_wall()
     rng = np.random.default_rng(0)
     qa = np.column_stack([rng.uniform(0, 0.07, 1400), rng.uniform(0, 0.005, 1400), np.full(1400, z0)])
     qb = np.column_stack([rng.uniform(0, 0.06, 300), np.zeros(300), z0 - rng.uniform(0.0015, 0.005, 300)])
