@@ -111,8 +111,8 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
     sig = float(noise.sigma_m(z))
     reach = fp.near_m + 3.0 * sig + 3.0 * float(noise.spacing_m(z))
     out: list[SeamCurve] = []
-    ta, da = _line_coords(pa, p0, u)
-    tb, db = _line_coords(pb, p0, u)
+    ta, da = line_coords(pa, p0, u)
+    tb, db = line_coords(pb, p0, u)
     near_a, near_b = da <= reach, db <= reach
     ta, tb = ta[near_a], tb[near_b]
     if len(ta) < 3 or len(tb) < 3:
@@ -153,11 +153,11 @@ def _standing_height(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surfa
     q = q[np.isfinite(q[:, 2])][:: max(1, int((lab == S.label).sum()) // 3000)]
     if len(q) == 0:
         return 0.0
-    _, d = _line_coords(q, p0, u)
+    _, d = line_coords(q, p0, u)
     return float(np.percentile(d, 98))
 
 
-def _line_coords(q: FloatArray, p0: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+def line_coords(q: FloatArray, p0: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Position along and distance from the line p0 + t u of (N, 3) points."""
     d = q - p0
     t = d @ u

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
+from perception.fine.folds import line_coords
 from perception.fine.groups import Groups
 from perception.fine.refine import near_points
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve
@@ -84,9 +85,7 @@ def _without_overlapping_twins(curves: list[SeamCurve], noise: NoiseModel, mp: M
             z = float(np.median(short.points[:, 2]))
             within = max(mp.twin_offset_m, 6.0 * float(noise.sigma_m(z)))
             probe = short.points[0] + np.linspace(0.0, 1.0, 21)[:, None] * (short.points[-1] - short.points[0])
-            d = probe - p0
-            t = d @ u
-            off = np.linalg.norm(d - np.outer(t, u), axis=1)
+            t, off = line_coords(probe, p0, u)
             along = (t >= 0.0) & (t <= length) & (off <= within)
             if along.mean() >= 0.5:
                 drop.add(s_i if short.support <= long_.support else l_i)
@@ -146,19 +145,16 @@ def _stretch_points(g0: FloatArray, g1: FloatArray, u: FloatArray, full: NDArray
     """The points near the line along the stretch g0-g1 (within ``near_m`` plus three sigma), as offsets from
     ``g0``, and their sigma."""
     q = near_points(full, intr, np.array([g0, g1]), mp.near_m + 0.004)
-    d = q - g0
-    t = d @ u
-    length = float(np.linalg.norm(g1 - g0))
+    t, dist = line_coords(q, g0, u)
     sig = noise.sigma_m(q[:, 2])
-    dist = np.linalg.norm(d - np.outer(t, u), axis=1)
-    keep = (t >= 0.0) & (t <= length) & (dist <= mp.near_m + 3.0 * sig)
-    return d[keep], sig[keep]
+    keep = (t >= 0.0) & (t <= float(np.linalg.norm(g1 - g0))) & (dist <= mp.near_m + 3.0 * sig)
+    return q[keep] - g0, sig[keep]
 
 
-def _on_faces(d: FloatArray, sig: FloatArray, c: SeamCurve) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-    """Per point (offsets ``d`` from the line): on face a and clearly off face b, and the other way round."""
-    ra, rb = np.abs(d @ c.normals_a[0]), np.abs(d @ c.normals_b[0])
-    return (ra <= 3.0 * sig) & (rb > 3.0 * sig), (rb <= 3.0 * sig) & (ra > 3.0 * sig)
+def _on_planes(d: FloatArray, sig: FloatArray, c: SeamCurve) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Per point (offsets ``d`` from the line): within three sigma of face a's plane through the line, and of
+    face b's."""
+    return np.abs(d @ c.normals_a[0]) <= 3.0 * sig, np.abs(d @ c.normals_b[0]) <= 3.0 * sig
 
 
 def _faces_present(g0: FloatArray, g1: FloatArray, u: FloatArray, c: SeamCurve, full: NDArray[np.float32],
@@ -166,10 +162,10 @@ def _faces_present(g0: FloatArray, g1: FloatArray, u: FloatArray, c: SeamCurve, 
     """Whether both of ``c``'s faces have points at the line along the stretch g0-g1 and nothing else stands
     there: fewer than ``interrupt_share`` of the points off both faces (a crossing plate's sides)."""
     d, sig = _stretch_points(g0, g1, u, full, intr, noise, mp)
-    on_a, on_b = _on_faces(d, sig, c)
-    off_both = (np.abs(d @ c.normals_a[0]) > 3.0 * sig) & (np.abs(d @ c.normals_b[0]) > 3.0 * sig)
+    plane_a, plane_b = _on_planes(d, sig, c)
+    off_both = ~plane_a & ~plane_b
     interrupted = int(off_both.sum()) >= max(3, int(np.ceil(mp.interrupt_share * len(d))))
-    return bool(on_a.any() and on_b.any() and not interrupted)
+    return bool((plane_a & ~plane_b).any() and (plane_b & ~plane_a).any() and not interrupted)
 
 
 def _faces_reach(g0: FloatArray, g1: FloatArray, u: FloatArray, c: SeamCurve, full: NDArray[np.float32],
@@ -182,7 +178,8 @@ def _faces_reach(g0: FloatArray, g1: FloatArray, u: FloatArray, c: SeamCurve, fu
     bins = max(1, int(np.ceil(float(np.linalg.norm(g1 - g0)) / mp.bin_m)))
     k = np.clip((t / mp.bin_m).astype(int), 0, bins - 1)
     covered = np.ones(bins, dtype=bool)
-    for on in _on_faces(d, sig, c):  # on one face's plane through the line and clearly off the other's
+    plane_a, plane_b = _on_planes(d, sig, c)
+    for on in (plane_a & ~plane_b, plane_b & ~plane_a):  # on one face's plane and clearly off the other's
         hit = np.zeros(bins, dtype=bool)
         hit[k[on]] = True
         covered &= hit

@@ -26,8 +26,6 @@ from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, Su
 
 COPY_SIGMA = 1.5  # see _others_residual
 ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
-
-
 TUKEY_C = 4.685  # Tukey's biweight constant: 95% efficiency on normal noise
 
 
