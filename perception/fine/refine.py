@@ -26,6 +26,7 @@ from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, Su
 
 COPY_SIGMA = 1.5  # see _others_residual
 ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
+END_BIN_POINTS = 4.0  # an end bin is widened until it is expected to hold this many points of a face
 TUKEY_C = 4.685  # Tukey's biweight constant: 95% efficiency on normal noise
 
 
@@ -355,10 +356,10 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
         k = np.floor((t[(t >= lo) & (t < hi)] - lo) / rp.end_bin_m).astype(int)
         count = np.bincount(np.clip(k, 0, nb - 1), minlength=nb)
         # a face seen obliquely has few points near the line: its bins are widened until each is expected
-        # to hold four of them where the face is, so that its random holes are not taken for its end
+        # to hold END_BIN_POINTS of them where the face is, so that its random holes are not taken for its end
         seen = count[inner][count[inner] > 0]
         per_bin = float(np.median(seen)) if seen.size else 0.0
-        need = 4.0 / max(per_bin, 0.5)
+        need = END_BIN_POINTS / max(per_bin, 0.5)
         width = min(2 * int(np.ceil((need - 1.0) / 2.0)) + 1, 7)  # the smallest odd width (centred) holding four
         if width > 1:
             count = np.convolve(count, np.ones(width, dtype=np.int64), mode="same")
@@ -373,7 +374,10 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
     tb_r = tb[(tb >= lo + r0 * rp.end_bin_m) & (tb < lo + r1 * rp.end_bin_m)]
     if ta_r.size == 0 or tb_r.size == 0:
         return None
-    ta_r, tb_r = trim_stray_tails(np.sort(ta_r)), trim_stray_tails(np.sort(tb_r))
+    # fewer points than a bin is widened to hold, past a hole, do not carry the end out (flying pixels, the
+    # other face's noise at its 3 sigma); a bin's worth or more past a hole is the face seen again
+    tail = int(END_BIN_POINTS) - 1
+    ta_r, tb_r = trim_stray_tails(np.sort(ta_r), max_tail=tail), trim_stray_tails(np.sort(tb_r), max_tail=tail)
     s0 = max(float(ta_r[0]), float(tb_r[0]))
     s1 = min(float(ta_r[-1]), float(tb_r[-1]))
     if s1 - s0 < 0.005:

@@ -129,3 +129,18 @@ def test_stray_points_past_a_faces_end_do_not_carry_the_seam_out() -> None:
     assert ends is not None
     t = np.sort(ends @ u)
     assert abs(t[1] - 0.06) < 0.0005
+
+
+def test_a_face_seen_again_past_a_hole_keeps_its_end() -> None:
+    # a sparse face (a line scanner's rows): the last row of a bin's worth of points lies past a 6 mm hole; it is the
+    # face seen again, not a stray, and the seam runs to it (a tail is stray only with fewer than a bin holds)
+    nm, floor, wall, u, z0 = _floor_and_wall()
+    rng = np.random.default_rng(1)
+    qa = np.column_stack([rng.uniform(0, 0.07, 1400), rng.uniform(0, 0.005, 1400), np.full(1400, z0)])
+    qb = np.column_stack([rng.uniform(0, 0.052, 300), np.zeros(300), z0 - rng.uniform(0.0015, 0.005, 300)])
+    row = np.column_stack([np.linspace(0.0584, 0.0590, 6), np.zeros(6), z0 - np.linspace(0.0015, 0.005, 6)])
+    ends = _supported_ends(qa, np.concatenate([qb, row]), floor, wall, np.array([0.0, 0.0, z0]), u, 0.0, 0.06,
+                           nm, RefineParams())  # fmt: skip
+    assert ends is not None
+    t = np.sort(ends @ u)
+    assert abs(t[1] - 0.059) < 0.0005
