@@ -16,7 +16,8 @@ same way.
 
 Host heartbeat (``heartbeat_register``, docs/controller-watchdogs.md): while connected, the I/O process writes
 ``R[heartbeat_register]`` every ``heartbeat_period_s``: a changing count (1..30000) while a digital output this
-driver switched on is on or a motion is in flight, 0 (the watchdog disarmed) when there is nothing to make safe.
+driver switched on is on or a motion is in flight, 0 (the watchdog disarmed) when there is nothing to make safe;
+a count is written and answered before an output goes on or a motion is sent, so nothing dangerous starts disarmed.
 The integrator's ``WC_HBEAT`` program on the controller switches the arc output off and stops the motion (user
 alarm, STOP.G) when that register stands still for its timeout: a dropped link, a hung or killed host.
 

@@ -85,6 +85,10 @@ class _Session:
         self._heartbeat: asyncio.Task[None] | None = None
         self._outputs_on: set[int] = set()  # outputs switched on (and not off since)
         self._motions = 0  # motions in flight
+        self._count = 0  # the heartbeat's last count
+        # held while the register's next value is chosen and written: a beat that chose 0 (nothing on) must not
+        # reach the controller after the count that armed it for an output or a motion
+        self._beat_lock: asyncio.Lock | None = None
 
     def _session(self) -> RMIClient:
         if self.client is None:
@@ -103,25 +107,39 @@ class _Session:
         client = RMIClient(self.s.host, self.s.port, timeout_s=self.s.timeout_s)
         await client.connect()
         self.client = client
+        self._beat_lock = asyncio.Lock()
         if self.s.heartbeat_register is not None:
             self._heartbeat = asyncio.ensure_future(self._beat(client, self.s.heartbeat_register))
 
     async def _beat(self, client: RMIClient, register: int) -> None:
         """R[register] = 1, 2, ... 30000, 1, ... every heartbeat_period_s while the session lives."""
-        count = 0
+        assert self._beat_lock is not None
         while client.connected:
             # armed (counting) while an output is on or a motion is in flight; 0 (disarmed) otherwise, so that
             # pendant work with the host connected and idle is not tripped by a host that pauses
-            if self._outputs_on or self._motions:
-                count = count % HEARTBEAT_MAX_COUNT + 1
-                value = count
-            else:
-                value = 0
-            try:
-                await client.write_numeric_register(register, value, timeout_s=self.s.timeout_s)
-            except DriverError as err:  # the controller's watchdog acts on the silence; say so once per failure
-                logger.warning("%s: heartbeat R[%d] not written: %s", self.s.name, register, err)
+            async with self._beat_lock:
+                value = self._next_count() if (self._outputs_on or self._motions) else 0
+                try:
+                    await client.write_numeric_register(register, value, timeout_s=self.s.timeout_s)
+                except DriverError as err:  # the controller's watchdog acts on the silence; say so once per failure
+                    logger.warning("%s: heartbeat R[%d] not written: %s", self.s.name, register, err)
             await asyncio.sleep(self.s.heartbeat_period_s)
+
+    def _next_count(self) -> int:
+        self._count = self._count % HEARTBEAT_MAX_COUNT + 1
+        return self._count
+
+    async def _arm(self, client: RMIClient) -> None:
+        """Write the heartbeat's next count and wait for the controller's answer, before an output goes on or a
+        motion is sent: the watchdog is idle while the register reads 0, and a host that died between its arc-on
+        and its next beat would otherwise leave the arc on with nothing watching (DriverError: not armed, so the
+        caller must not go on)."""
+        register = self.s.heartbeat_register
+        if register is None:
+            return
+        assert self._beat_lock is not None
+        async with self._beat_lock:
+            await client.write_numeric_register(register, self._next_count(), timeout_s=self.s.timeout_s)
 
     async def op_disconnect(self) -> None:
         client, self.client = self.client, None
@@ -167,7 +185,14 @@ class _Session:
     async def op_write_dout(self, index: int, value: bool) -> None:
         client = self._session()
         if value:
-            self._outputs_on.add(index)  # armed before the output goes on
+            was_on = index in self._outputs_on
+            self._outputs_on.add(index)  # the beats count from here on
+            try:
+                await self._arm(client)  # and the controller has seen a count before the output goes on
+            except BaseException:
+                if not was_on:
+                    self._outputs_on.discard(index)
+                raise
         await client.write_dout(index + 1, value)
         if not value:
             self._outputs_on.discard(index)
@@ -190,6 +215,7 @@ class _Session:
         client = self._session()
         self._motions += 1  # the heartbeat is armed while a motion is in flight
         try:
+            await self._arm(client)  # before its first instruction is sent
             await self._motion(client, targets, speed_mm_s, cnt_value, timeout_s, on_complete)
         finally:
             self._motions -= 1

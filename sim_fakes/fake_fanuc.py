@@ -225,7 +225,8 @@ class FakeFanucController(LoopThreadFake):
         return self._call(lambda: len(self._queue))
 
     def events(self) -> list[dict[str, Any]]:
-        """Controller-side happenings with the fake's clock ``t`` (s): ``heartbeat_lost`` trips, digital output
+        """Controller-side happenings with the fake's clock ``t`` (s): ``heartbeat_lost`` trips, ``heartbeat_armed`` and
+        ``heartbeat_disarmed`` (the host wrote the register non-zero after 0, or 0 after a count), digital output
         writes (``dout``: the host's with the tool position ``xyz_mm`` at that instant, the watchdog's with its
         ``cause``), faults injected."""
         return self._call(lambda: list(self._events))
@@ -461,6 +462,10 @@ class FakeFanucController(LoopThreadFake):
             return {"ErrorID": int(ErrorID.INVALID_VALUE)}
         if isinstance(value, bool) or not isinstance(value, int | float):
             return {"ErrorID": int(ErrorID.INVALID_VALUE)}
+        hb = self._heartbeat
+        if hb is not None and number == hb.register and (self._registers.get(number, 0.0) == 0.0) != (value == 0):
+            # the watchdog program's arming changes: a trace an integrator can read off the register's history
+            self._event("heartbeat_disarmed" if value == 0 else "heartbeat_armed", register=number)
         self._registers[number] = float(value)
         return {}
 

@@ -143,3 +143,42 @@ def test_a_killed_host_process_stops_the_motion_and_the_arc_within_one_second(fa
     finally:
         proc.kill()
         proc.wait(10)
+
+
+def test_a_host_silent_right_after_the_arc_goes_on_still_gets_the_arc_switched_off(fake) -> None:
+    # Idle, the host writes 0 (disarmed). The arc output must not go on before a count has reached the controller:
+    # a host that dies between its arc-on and its next beat would otherwise leave the arc on with the watchdog off.
+    robot = FanucRobot(fake.host, port=fake.port, heartbeat_register=REGISTER, heartbeat_period_s=0.2, timeout_s=0.5)
+    robot.connect()
+    try:
+        time.sleep(0.5)  # idle beats: R[90] = 0
+        assert fake.register(REGISTER) == 0.0
+        robot.set_digital_output(0, True)
+        t0 = time.monotonic()
+        fake.inject("no_answer")  # before the next beat (0.2 s away)
+        assert _wait_arc_off(fake, t0) < 1.0
+    finally:
+        fake.clear_faults()
+        robot.disconnect()
+
+
+def test_the_watchdog_is_armed_before_an_output_goes_on_and_before_a_motion_is_sent(fake) -> None:
+    robot = FanucRobot(fake.host, port=fake.port, heartbeat_register=REGISTER, heartbeat_period_s=0.2)
+    robot.connect()
+    try:
+        time.sleep(0.5)
+        robot.set_digital_output(0, True)
+        robot.set_digital_output(0, False)
+        time.sleep(0.5)  # disarmed again
+        X = robot.get_X_base_tool()
+        X[0, 3] += 0.002
+        robot.move_linear(X, speed_m_s=0.05, timeout_s=10)
+        events = fake.events()
+        dout_on = next(e for e in events if e["kind"] == "dout" and e["value"])
+        armed = [e["t"] for e in events if e["kind"] == "heartbeat_armed"]
+        first_motion_s = fake.accepted_records()[0].received_s
+        assert len(armed) >= 2
+        assert armed[0] < dout_on["t"]
+        assert any(dout_on["t"] < t < first_motion_s for t in armed)  # re-armed after the idle spell, before moving
+    finally:
+        robot.disconnect()
