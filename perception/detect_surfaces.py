@@ -2,10 +2,12 @@
 
 The coarse stage is geometric here: surfaces are segmented on every ``factor``-th pixel (a quarter of them
 at 1280x720), and only bands around the candidate seams are read at full resolution (the share of points
-left out is ``info["removed_share"]``). Prompts and the image segmenter are not used yet (``segmenter`` is
-accepted for the same signature as :func:`perception.detect.detect`); the table is told apart by geometry.
+left out is ``info["removed_share"]``). The image segmenter is not used (``segmenter`` is accepted for the same
+signature as :func:`perception.detect.detect`); the table is told apart by geometry. The operator's prompts,
+when given, say which surfaces are the workpiece (:mod:`perception.fine.workpiece`): clutter's folds are not
+seams.
 
-    noise -> surfaces -> support -> adjacency -> folds, gaps, grooves     (work resolution)
+    noise -> surfaces -> support -> adjacency -> workpiece -> folds, gaps, grooves     (work resolution)
           -> refine -> inner gaps, steps -> merge -> view clip -> corners  (full resolution near the seams)
 
 Each step is timed and counted in the result's ``timing_s`` (``step_<name>``) and ``info["counts"]``.
@@ -51,9 +53,9 @@ def detect_surfaces(
     with log.step("work_image"):
         work = _work_image(organized, factor, p)
     log.counts["work"] = int(np.isfinite(work[..., 2]).sum())
-    curves, surf, noise, support, pairs = _work_resolution_steps(work, factor, organized, capture, log)
+    curves, surf, noise, support, skip, pairs = _work_resolution_steps(work, factor, organized, capture, log)
     t_coarse = time.perf_counter() - t0
-    curves, used = _full_resolution_steps(curves, surf, noise, support, pairs, work, organized, capture, log)
+    curves, used = _full_resolution_steps(curves, surf, noise, skip, pairs, work, organized, capture, log)
     t_fine = time.perf_counter() - t0 - t_coarse
     if not curves:
         raise NoSeamFound(
@@ -101,8 +103,9 @@ def _work_image(organized: NDArray[np.float32], factor: int, p: DetectParams) ->
 
 def _work_resolution_steps(
     work: NDArray[np.float64], factor: int, organized: NDArray[np.float32], capture: Capture, log: StepLog
-) -> tuple[list[SeamCurve], SurfaceSet, NoiseModel, frozenset[int], tuple[Pair, ...]]:
-    """Noise, surfaces, support, adjacency and the candidate seams (folds, gaps, grooves)."""
+) -> tuple[list[SeamCurve], SurfaceSet, NoiseModel, frozenset[int], frozenset[int], tuple[Pair, ...]]:
+    """Noise, surfaces, support, adjacency, the workpiece and the candidate seams (folds, gaps, grooves); with
+    the support and the surfaces that are never a seam's face (the support, and those off the workpiece)."""
     from perception.fine.adjacency import adjacent_pairs
     from perception.fine.folds import fold_seams
     from perception.fine.gaps import gap_seams
@@ -110,6 +113,7 @@ def _work_resolution_steps(
     from perception.fine.noise import estimate_noise, local_planes
     from perception.fine.support import find_support
     from perception.fine.surfaces import segment_surfaces
+    from perception.fine.workpiece import prompted_labels, workpiece_labels
 
     with log.step("noise"):
         planes = local_planes(work, window_px=7)
@@ -118,28 +122,34 @@ def _work_resolution_steps(
         surf = segment_surfaces(work, planes, noise, factor=factor)
     log.counts["surfaces"] = len(surf.surfaces)
     with log.step("support"):
+        prompted = prompted_labels(capture.prompts_px, surf)
         support = find_support(work, surf, noise)
     with log.step("adjacency"):
         pairs = adjacent_pairs(surf, noise)
     log.counts["pairs"] = len(pairs)
+    with log.step("workpiece"):
+        workpiece = workpiece_labels(work, surf, pairs, noise, prompted=prompted, support=support)
+        # never a seam's face: the support, and with prompts every surface not joined to a prompted one
+        skip = support if workpiece is None else frozenset(range(len(surf.surfaces))) - (workpiece - support)
+    log.counts["workpiece"] = len(surf.surfaces) if workpiece is None else len(workpiece)
     with log.step("folds"):
-        curves = fold_seams(work, surf, pairs, noise, support=support)
+        curves = [c for c in fold_seams(work, surf, pairs, noise, support=support) if not set(c.surfaces) & skip]
     with log.step("gaps"):
-        curves += gap_seams(work, surf, pairs, noise, support=support)
+        curves += gap_seams(work, surf, pairs, noise, support=skip)
     with log.step("grooves"):
         grooves, surf = groove_seams(work, surf, noise, organized, capture.intrinsics, _full(noise, factor),
-                                     support=support)  # fmt: skip
+                                     support=skip)  # fmt: skip
         # a groove whose bevels were segmented is already a fold between them
         curves += [g for g in grooves if not _duplicates(g, curves, within_m=0.004)]
     log.counts["candidates"] = len(curves)
-    return curves, surf, noise, support, pairs
+    return curves, surf, noise, support, skip, pairs
 
 
 def _full_resolution_steps(
     curves: list[SeamCurve],
     surf: SurfaceSet,
     noise: NoiseModel,
-    support: frozenset[int],
+    skip: frozenset[int],
     pairs: tuple[Pair, ...],
     work: NDArray[np.float64],
     organized: NDArray[np.float32],
@@ -160,9 +170,9 @@ def _full_resolution_steps(
         curves, used = refine_seams(curves, organized, capture.intrinsics, surf, noise_full)
     log.counts["cropped"] = used
     with log.step("inner_gaps"):
-        curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=support)
+        curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=skip)
     with log.step("steps"):
-        steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=support)
+        steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=skip)
         # a step places the lap's edge from both plates and the edge face's own points; a fold on the narrow
         # edge face, fitted on a few pixels, is the weaker estimate of the same seam
         curves = [c for c in curves if not _duplicates(c, steps)] + steps
