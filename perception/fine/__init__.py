@@ -6,6 +6,8 @@
                                      strips of a thin pipe that the fold test cut apart become its cylinder
       -> support.find_support        the table (or fixture plane) the workpiece stands on
       -> adjacency.adjacent_pairs    surfaces that come near each other (across blurred or unsampled corners)
+      -> workpiece.workpiece_labels  with prompts: the prompted surfaces and what touches them in space (not
+                                     through the support); seams are only looked for between these
       -> folds.fold_seams            concave folds: plane x plane lines, plane x cylinder rings, clipped to
                                      where both surfaces have support; open roots (V-groove gaps)
       -> gaps.gap_seams              butt gaps: coplanar surfaces whose facing boundaries run parallel
