@@ -26,6 +26,7 @@ from perception.fine.groups import Groups
 from perception.fine.noise import LocalPlanes
 from perception.fine.parallel import split_parallel
 from perception.fine.types import NoiseModel, Surface, SurfaceSet
+from perception.fits import mean_rows, sum_rows
 
 FloatArray = NDArray[np.float64]
 
@@ -51,11 +52,11 @@ def _fit_plane(p: FloatArray, weights: FloatArray | None = None) -> tuple[FloatA
     """Least-squares plane of (N, 3) points, each weighted by ``weights`` when given: unit normal (towards the
     camera), offset, RMS residual."""
     if weights is None:
-        c = p.mean(axis=0)
+        c = mean_rows(p)
         q = p - c
         w, v = np.linalg.eigh(q.T @ q / max(len(p), 1))
     else:
-        c = (weights[:, None] * p).sum(axis=0) / weights.sum()
+        c = sum_rows(p, weights) / weights.sum()
         q = p - c
         w, v = np.linalg.eigh((weights[:, None] * q).T @ q)
         w = w / weights.sum()
