@@ -17,7 +17,7 @@ def sum_rows(p: FloatArray, weights: FloatArray | None = None) -> FloatArray:
     faster. NumPy adds the rows of a row-major array one after another in a loop three values wide; einsum
     adds them in the same order without that loop's overhead. A column-major array is summed pairwise by
     NumPy, and is left to it."""
-    if p.ndim != 2 or p.strides[1] >= p.strides[0]:
+    if p.ndim != 2 or len(p) < 2 or p.strides[1] >= p.strides[0]:
         return np.asarray(p.sum(axis=0) if weights is None else (weights[:, None] * p).sum(axis=0))
     return np.einsum("ij->j", p) if weights is None else np.einsum("i,ij->j", weights, p)
 

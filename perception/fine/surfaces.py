@@ -69,7 +69,7 @@ def _fit_plane(p: FloatArray, weights: FloatArray | None = None) -> tuple[FloatA
 def _two_dimensional(q: FloatArray, spacing_m: float, sp: SurfaceParams) -> bool:
     """A plane needs support in two directions: points along a strip a pixel or two wide fit any plane
     through their line (a face seen at a grazing angle, a thin edge)."""
-    c = q - q.mean(axis=0)
+    c = q - mean_rows(q)
     w = np.linalg.eigvalsh(c.T @ c / max(len(q), 1))
     return bool(np.sqrt(max(w[1], 0.0)) >= sp.min_width_px * spacing_m)
 
@@ -240,7 +240,7 @@ def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: F
     if not _two_dimensional(q[::th], spacing_c, sp):
         return [], []
     if inl.mean() >= sp.plane_share:
-        s = Surface(-1, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc)
+        s = Surface(-1, "plane", nrm, d, rms, int(inl.sum()), mean_rows(q[inl]), zc)
         out_px = idx[~inl]
         return [(s, idx[inl])], [out_px[k] for k in _connected_pieces(out_px, w, sp.min_pixels)]
     out: list[tuple[Surface, NDArray[np.int64]]] = []
@@ -264,7 +264,7 @@ def _planes_of(q: FloatArray, idx: NDArray[np.int64], tol: FloatArray, width: in
     for sub in _ransac_planes(q, tol, sp.min_pixels, rng, pixels=idx, width=width):
         if _two_dimensional(q[sub], spacing, sp):
             nrm, d, rms = _fit_plane(q[sub])
-            out.append((Surface(-1, "plane", nrm, d, rms, len(sub), q[sub].mean(axis=0), zc), idx[sub]))
+            out.append((Surface(-1, "plane", nrm, d, rms, len(sub), mean_rows(q[sub]), zc), idx[sub]))
     return out
 
 
@@ -317,7 +317,7 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
         if cyl is None or not 0.003 < cyl[2] < 1.0:
             return None
         axis, centre, r, _ = cyl
-        trial = Surface(-1, "cylinder", np.zeros(3), 0.0, 0.0, 0, q.mean(axis=0), zc, axis=axis, centre=centre,
+        trial = Surface(-1, "cylinder", np.zeros(3), 0.0, 0.0, 0, mean_rows(q), zc, axis=axis, centre=centre,
                         radius=r)  # fmt: skip
         cres = np.abs(trial.residual(q))
         inl = cres <= tol
@@ -339,7 +339,7 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
     if sum(len(k) for k in planes) + min_points > inl.sum():
         return None
     crms = float(np.sqrt(np.mean(cres[inl] ** 2)))
-    return replace(trial, label=label, rms_m=crms, n_points=int(inl.sum()), centroid=q[inl].mean(axis=0)), inl
+    return replace(trial, label=label, rms_m=crms, n_points=int(inl.sum()), centroid=mean_rows(q[inl])), inl
 
 
 def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
@@ -383,12 +383,12 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
             continue
         if inl.sum() < sp.narrow_min_pixels:
             continue
-        c_ = q[inl] - q[inl].mean(axis=0)
+        c_ = q[inl] - mean_rows(q[inl])
         w = np.linalg.eigvalsh(c_.T @ c_ / len(c_))
         if np.sqrt(max(w[1], 0.0)) < sp.narrow_min_width_px * spacing:
             continue
         k = len(surfaces)
-        surfaces.append(Surface(k, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc))
+        surfaces.append(Surface(k, "plane", nrm, d, rms, int(inl.sum()), mean_rows(q[inl]), zc))
         lab.reshape(-1)[idx[inl]] = k
     return lab
 
@@ -473,7 +473,12 @@ def _free_beside(cy: NDArray[np.int64], cx: NDArray[np.int64], lab: NDArray[np.i
     ys = np.concatenate([cy + dy for dy, _ in neighbours])
     xs = np.concatenate([cx + dx for _, dx in neighbours])
     inside = (ys >= 0) & (ys < h) & (xs >= 0) & (xs < w)
-    flat = np.unique(ys[inside] * w + xs[inside])
+    flat = ys[inside] * w + xs[inside]
+    if len(flat):  # np.unique's sorted distinct values, from marks over their range (no sort)
+        lo = int(flat.min())
+        mark = np.zeros(int(flat.max()) - lo + 1, bool)
+        mark[flat - lo] = True
+        flat = np.flatnonzero(mark) + lo
     ys, xs = flat // w, flat % w
     free = valid[ys, xs] & (lab[ys, xs] < 0)
     return ys[free], xs[free]
@@ -626,5 +631,5 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
             continue
         q = pf[new_labels == k]
         nrm, d, rms = _fit_plane(q[:: max(1, len(q) // 20000)])
-        merged.append(Surface(k, "plane", nrm, d, rms, len(q), q.mean(axis=0), float(np.median(q[:, 2]))))
+        merged.append(Surface(k, "plane", nrm, d, rms, len(q), mean_rows(q), float(np.median(q[:, 2]))))
     return new_labels, merged
