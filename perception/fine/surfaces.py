@@ -490,17 +490,19 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
     """Neighbouring planes that are strips of one cylinder become that cylinder. A pipe of small radius seen
     from afar turns so fast that the fold test cuts it into strips a few pixels wide, each flat within the
     noise: neighbours whose normals differ by less than a fold and whose union one cylinder fits are one."""
-    from perception.fine.adjacency import adjacent_pairs
+    from perception.fine.adjacency import adjacent_pairs, plane_partners
 
     plane_ids = [s.label for s in surfaces if s.kind == "plane"]
     if len(plane_ids) < 2:
         return labels, surfaces
     z_typ = float(np.median([s.z_m for s in surfaces]))
-    pairs = adjacent_pairs(SurfaceSet(labels, 1, tuple(surfaces)), noise, reach_m=4.0 * float(noise.spacing_m(z_typ)))
+    lo_cos, hi_cos = np.cos(np.radians(60.0)), np.cos(sp.merge_angle_rad)
+    surf = SurfaceSet(labels, 1, tuple(surfaces))
+    pairs = adjacent_pairs(surf, noise, reach_m=4.0 * float(noise.spacing_m(z_typ)),
+                           among=plane_partners(surf, min_cos=float(lo_cos), max_cos=float(hi_cos)))  # fmt: skip
     groups_of = Groups(plane_ids)
     find = groups_of.find
 
-    lo_cos, hi_cos = np.cos(np.radians(60.0)), np.cos(sp.merge_angle_rad)
     for pr in pairs:
         A, B = surfaces[pr.a], surfaces[pr.b]
         if A.kind != "plane" or B.kind != "plane" or not lo_cos < float(A.normal @ B.normal) < hi_cos:
