@@ -21,7 +21,7 @@ from perception.fine.cylinder import axis_basis, circle_across
 from perception.fine.folds import plane_line, ring_points
 from perception.fine.root import open_root
 from perception.fine.runs import covered_runs, trim_stray_tails
-from perception.fine.surfaces import _fit_plane
+from perception.fine.surfaces import _fit_plane, fit_plane_rows
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
 
 COPY_SIGMA = 1.5  # see _others_residual
@@ -293,7 +293,8 @@ def _robust_plane_fit(p: FloatArray, weights: FloatArray, *, iterations: int = 8
     falls smoothly to zero at TUKEY_C robust sigmas (the residuals' MAD), so that the few points of another
     surface that pass the gates (the last pixel row of a convex edge beside a face seen a few pixels wide)
     do not tilt the plane, while the face's own noise keeps 95% of the least-squares efficiency."""
-    n, off, _ = _fit_plane(p, weights)
+    rows = np.ascontiguousarray(p.T)  # the (3, N) layout every refit's moments are taken in
+    n, off, _ = fit_plane_rows(p, rows, weights)
     for _ in range(iterations):
         r = p @ n + off
         scale = 1.4826 * float(np.median(np.abs(r)))
@@ -303,7 +304,7 @@ def _robust_plane_fit(p: FloatArray, weights: FloatArray, *, iterations: int = 8
         w = weights * np.where(np.abs(x) < 1.0, (1.0 - x * x) ** 2, 0.0)
         if w.sum() <= 0.0 or np.count_nonzero(w) < 10:
             break
-        n, off, _ = _fit_plane(p, w)
+        n, off, _ = fit_plane_rows(p, rows, w)
     return n, off
 
 
