@@ -79,8 +79,8 @@ def fit_plane_rows(p: FloatArray, rows: FloatArray, weights: FloatArray | None =
 def _two_dimensional(q: FloatArray, spacing_m: float, sp: SurfaceParams) -> bool:
     """A plane needs support in two directions: points along a strip a pixel or two wide fit any plane
     through their line (a face seen at a grazing angle, a thin edge)."""
-    c = q - mean_rows(q)
-    w = np.linalg.eigvalsh(c.T @ c / max(len(q), 1))
+    c = np.ascontiguousarray(q.T) - mean_rows(q)[:, None]  # centred in (3, N) rows (see fit_plane_rows)
+    w = np.linalg.eigvalsh(c @ c.T / max(len(q), 1))
     return bool(np.sqrt(max(w[1], 0.0)) >= sp.min_width_px * spacing_m)
 
 
@@ -174,7 +174,7 @@ def _components(p: FloatArray, planes: LocalPlanes, noise: NoiseModel,
     for link, (dy, dx) in ((link_r, (0, 1)), (link_d, (1, 0))):
         a = (slice(0, h - dy), slice(0, w - dx))
         b = (slice(dy, h), slice(dx, w))
-        dp = np.nan_to_num(p[b] - p[a])
+        dp = np.nan_to_num(p[b] - p[a], copy=False)
         off = np.abs(np.einsum("ijk,ijk->ij", dp, n[a]))
         link[a] = ok_px[a] & ok_px[b] & (off < sp.jump_sigma * sigma[a] + 0.5 * spacing[a])
     big = np.zeros((2 * h - 1, 2 * w - 1), np.uint8)
@@ -205,7 +205,7 @@ def segment_surfaces(
 
     surfaces: list[Surface] = []
     labels = np.full(z.shape, -1, np.int32)
-    order = np.argsort(comp.ravel(), kind="stable")
+    order = _stable_order(comp.ravel(), len(counts))
     starts = np.searchsorted(comp.ravel()[order], np.arange(len(counts)))
     rng = np.random.default_rng(0)
     queue = deque(order[starts[c] : starts[c] + counts[c]] for c in np.flatnonzero(counts >= sp.min_pixels))
@@ -221,6 +221,12 @@ def segment_surfaces(
     if len(surfaces) > n_before:  # a split plate's part may be one plane with its neighbour (a strip by its edge)
         labels, surfaces = _merge_coplanar(p, labels, surfaces, noise, sp)
     return SurfaceSet(labels, factor, tuple(surfaces))
+
+
+def _stable_order(keys: NDArray[np.int32], n_keys: int) -> NDArray[np.intp]:
+    """``np.argsort(keys, kind="stable")`` of labels -1 .. n_keys - 1: sorted as int16 when they fit (a stable
+    sort's order is unique, and NumPy radix-sorts 16-bit keys, three times faster)."""
+    return np.argsort(keys.astype(np.int16) if n_keys < 2**15 - 1 else keys, kind="stable")
 
 
 def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: FloatArray, noise: NoiseModel,
@@ -606,15 +612,12 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
         for code in np.unique(lo * n_lab + hi).tolist():
             touching.add((code // n_lab, code % n_lab))
     cos_m = np.cos(sp.merge_angle_rad)
-    pf = np.nan_to_num(p)
     flat = labels.reshape(-1)
-    order = np.argsort(flat, kind="stable")
-    starts = np.searchsorted(flat[order], np.arange(n_lab + 1))
-    pts_flat = pf.reshape(-1, 3)
+    pts_flat = p.reshape(-1, 3)
 
     def sample(lab: int) -> FloatArray:
-        idx = order[starts[lab] : starts[lab + 1]]
-        return pts_flat[idx[:: max(1, len(idx) // 2000)]]
+        idx = np.flatnonzero(flat == lab)  # only the few pieces a pair needs, not a sort of the whole image
+        return np.nan_to_num(pts_flat[idx[:: max(1, len(idx) // 2000)]])
 
     for u, v in sorted(touching):
         su, sv = surfaces[u], surfaces[v]
@@ -641,7 +644,7 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
             merged.append(Surface(k, s.kind, s.normal, s.offset, s.rms_m, s.n_points, s.centroid, s.z_m, s.axis,
                                   s.centre, s.radius))  # fmt: skip
             continue
-        q = pf[new_labels == k]
+        q = np.nan_to_num(p[new_labels == k])
         nrm, d, rms = _fit_plane(q[:: max(1, len(q) // 20000)])
         merged.append(Surface(k, "plane", nrm, d, rms, len(q), mean_rows(q), float(np.median(q[:, 2]))))
     return new_labels, merged
