@@ -187,12 +187,13 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     line0 = p0
     for _ in range(rp.iterations):
         ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
-        da, db = (q - line0) @ va, (q - line0) @ vb
+        dl = q - line0
+        da, db = dl @ va, dl @ vb
         # near the corner a point lies within the noise of both faces: those points would pull each plane
         # towards the other, so the fits use what lies beyond a few sigma of the current line
-        dl = q - line0
         tl = dl @ u
-        dist = np.sqrt(np.maximum((dl * dl).sum(axis=1) - tl * tl, 0.0))
+        sq = dl * dl
+        dist = np.sqrt(np.maximum(sq[:, 0] + sq[:, 1] + sq[:, 2] - tl * tl, 0.0))  # the row sums' own order
         clear = dist > rp.corner_sigma * sig + spacing
         # a point another surface explains better is not this pair's (fragments of the pair's own faces are
         # not among the others: choosing between two near-copies of a face would bias its fit)
@@ -260,9 +261,10 @@ def _beyond_band(far: FloatArray, labels: NDArray[np.int32], sig: FloatArray, pl
     """Beyond the band, each face's points: those of the face and of its fragments, on its side of the line,
     within the noise of its current plane and nearer it than the other face's."""
     ra, rb = (np.abs(S.residual(far)) for S in planes)
+    d = far - line0
     out = []
     for r_own, r_other, label, v in ((ra, rb, own[0], across[0]), (rb, ra, own[1], across[1])):
-        keep = _fragments(labels, r_own, sig, label) & ((far - line0) @ v > rp.band_m)
+        keep = _fragments(labels, r_own, sig, label) & (d @ v > rp.band_m)
         out.append(far[keep & (r_own <= rp.inlier_sigma * sig) & (r_own <= r_other)])
     return out[0], out[1]
 
