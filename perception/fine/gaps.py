@@ -309,7 +309,10 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
         d = d[ok] / ln[ok, None]
         o = left[i[ok, 0]]
         across = np.cross(normal, d)
-        dist = np.abs(np.einsum("tk,nk->tn", across, left) - (across * o).sum(axis=1)[:, None])
+        # (trials, points) distances worked on in place: each fresh temporary of a few MB costs its page faults
+        dist = np.einsum("tk,nk->tn", across, left)
+        dist -= (across * o).sum(axis=1)[:, None]
+        np.abs(dist, out=dist)
         inl = dist <= 0.001
         best = int(np.argmax(inl.sum(axis=1)))
         pts = left[inl[best]]
