@@ -54,12 +54,14 @@ def _fit_plane(p: FloatArray, weights: FloatArray | None = None) -> tuple[FloatA
     return fit_plane_rows(p, np.ascontiguousarray(p.T), weights)
 
 
-def fit_plane_rows(p: FloatArray, rows: FloatArray, weights: FloatArray | None = None) -> tuple[FloatArray, float, float]:
+def fit_plane_rows(p: FloatArray, rows: FloatArray,
+                   weights: FloatArray | None = None) -> tuple[FloatArray, float, float]:  # fmt: skip
     """:func:`_fit_plane` of (N, 3) points ``p`` also given as their (3, N) coordinate rows ``rows`` (a fit
-    that refits the same points keeps both). The centroid is summed over ``p`` (:func:`perception.fits.sum_rows`)
-    and the points are centred and weighted in ``rows``, where that is one pass along each row (on (N, 3)
-    rows it is a loop three values wide, ten times slower); every value is the one the (N, 3) arithmetic gives,
-    the scatter matrix's product included (BLAS is handed the same matrices, in the other layout)."""
+    that refits the same points keeps both). The centroid is summed over ``p``
+    (:func:`perception.fits.sum_rows`) and the points are centred and weighted in ``rows``, where that is one
+    pass along each row (on (N, 3) rows it is a loop three values wide, ten times slower); every value is the
+    one the (N, 3) arithmetic gives, the scatter matrix's product included (BLAS is handed the same matrices,
+    in the other layout)."""
     if weights is None:
         c = mean_rows(p)
         q = rows - c[:, None]
