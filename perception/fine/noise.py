@@ -40,7 +40,9 @@ def local_planes(points: NDArray[np.floating], *, window_px: int) -> LocalPlanes
 
     p = np.asarray(points, dtype=np.float64)
     valid = np.isfinite(p[..., 2])
-    ref = np.nanmedian(p[valid], axis=0) if valid.any() else np.zeros(3)
+    ref = np.zeros(3)
+    if valid.any():  # per coordinate, in its own gathered copy: the values of np.nanmedian(p[valid], axis=0)
+        ref = np.array([np.nanmedian(p[..., k][valid], overwrite_input=True) for k in range(3)])
     # one contiguous plane per coordinate, relative to one point (small sums, no cancellation): the filters
     # and the per-pixel algebra below run on whole planes, not on strided (h, w, 3) views
     qx, qy, qz = (np.where(valid, p[..., k] - ref[k], 0.0) for k in range(3))
