@@ -57,3 +57,13 @@ def test_a_plate_without_a_gap_gives_none() -> None:
     p, _, nm, surf = work("tee", "stereo")
     assert inner_gap_seams(res.capture.points_camera(), res.capture.intrinsics, surf, nm,
                            support=find_support(p, surf, nm)) == []  # fmt: skip
+
+
+def test_dots_are_einsums_values_bit_for_bit() -> None:
+    from perception.fine.gaps import _dots
+
+    rng = np.random.default_rng(11)
+    for n, t in ((1, 1), (7, 3), (5000, 290)):
+        pts = rng.normal(size=(n, 3)) * 0.1 + [0.05, 0.02, 0.6]
+        a = np.cross([0.0, 0.0, 1.0], rng.normal(size=(t, 3)))
+        assert np.array_equal(_dots(a, np.ascontiguousarray(pts.T)), np.einsum("tk,nk->tn", a, pts))
