@@ -4,6 +4,8 @@ a strip with no data still count as neighbours."""
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -13,8 +15,11 @@ REACH_M = 0.006
 MIN_CONTACT_PX = 6
 
 
-def adjacent_pairs(surfaces: SurfaceSet, noise: NoiseModel, *, reach_m: float = REACH_M) -> tuple[Pair, ...]:
-    """Pairs (a < b) of surfaces within ``reach_m`` of each other in the image, with their contact pixels."""
+def adjacent_pairs(surfaces: SurfaceSet, noise: NoiseModel, *, reach_m: float = REACH_M,
+                   among: Collection[int] | None = None) -> tuple[Pair, ...]:  # fmt: skip
+    """Pairs (a < b) of surfaces within ``reach_m`` of each other in the image, with their contact pixels;
+    only pairs of the labels ``among`` when given (the others are not dilated: a caller that looks at a few
+    kinds of pair pays for those only)."""
     import cv2
     from scipy import ndimage
 
@@ -22,7 +27,7 @@ def adjacent_pairs(surfaces: SurfaceSet, noise: NoiseModel, *, reach_m: float = 
     h, w = lab.shape
     dil: dict[int, tuple[tuple[int, int, int, int], NDArray[np.bool_]]] = {}
     for k, sl in enumerate(ndimage.find_objects(lab + 1)):
-        if sl is None or k >= len(surfaces.surfaces):
+        if sl is None or k >= len(surfaces.surfaces) or (among is not None and k not in among):
             continue
         s = surfaces.surfaces[k]
         r = int(np.clip(np.ceil(reach_m / float(noise.spacing_m(s.z_m))), 2, 25))
@@ -46,3 +51,18 @@ def adjacent_pairs(surfaces: SurfaceSet, noise: NoiseModel, *, reach_m: float = 
             ys, xs = np.nonzero(both)
             out.append(Pair(a, b, np.column_stack([ys + y0, xs + x0]).astype(np.int64)))
     return tuple(out)
+
+
+def plane_partners(surfaces: SurfaceSet, *, min_cos: float, max_cos: float = 1.0,
+                   exclude: Collection[int] = ()) -> frozenset[int]:  # fmt: skip
+    """The labels of the planes (less ``exclude``) with another such plane whose normal makes a cosine in
+    [min_cos, max_cos] with theirs: every plane of a pair a caller accepts by that cosine, and a few more (the
+    bounds are widened by 1e-9 against rounding), for :func:`adjacent_pairs`' ``among``."""
+    planes = [s for s in surfaces.surfaces if s.kind == "plane" and s.label not in exclude]
+    if len(planes) < 2:
+        return frozenset()
+    n = np.array([s.normal for s in planes])
+    c = n @ n.T
+    ok = (c >= min_cos - 1e-9) & (c <= max_cos + 1e-9)
+    np.fill_diagonal(ok, False)
+    return frozenset(s.label for s, has in zip(planes, ok.any(axis=1), strict=True) if has)

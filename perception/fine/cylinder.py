@@ -18,7 +18,8 @@ def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatA
     """
     from scipy.optimize import least_squares
 
-    ok = np.all(np.isfinite(normals), axis=1)
+    finite = np.isfinite(normals)
+    ok = finite[:, 0] & finite[:, 1] & finite[:, 2]  # np.all(axis=1) loops three values wide: slow
     if ok.sum() < 20:
         return None
     nm = normals[ok]
@@ -46,15 +47,14 @@ def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatA
     centre, r = start
     e1, e2 = axis_basis(axis)
     q = p[:: max(1, len(p) // 4000)]
+    rows = np.ascontiguousarray(q.T)
     scale = max(r, 1e-3)
 
     def resid(x: FloatArray) -> FloatArray:
         a = axis + x[0] * e1 + x[1] * e2
         a /= np.linalg.norm(a)
         c = centre + x[2] * e1 + x[3] * e2
-        d = q - c
-        radial = d - np.outer(d @ a, a)
-        return np.asarray(np.linalg.norm(radial, axis=1) - x[4])
+        return np.asarray(_radial(rows, c, a)[2] - x[4])
 
     def jac(x: FloatArray) -> FloatArray:
         # r = |d - (d.a) a| - R with d = q - c: along the unit radial n, dr/dc = -n and dr/da = -(d.a) n
@@ -62,15 +62,13 @@ def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatA
         b = axis + x[0] * e1 + x[1] * e2
         nb = float(np.linalg.norm(b))
         a = b / nb
-        d = q - (centre + x[2] * e1 + x[3] * e2)
-        da = d @ a
-        radial = d - np.outer(da, a)
-        n = radial / np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-12)
+        da, radial, length = _radial(rows, centre + x[2] * e1 + x[3] * e2, a)
+        n = np.ascontiguousarray((radial / np.maximum(length, 1e-12)).T)
         n1, n2 = n @ e1, n @ e2
-        return np.column_stack([-da * n1 / nb, -da * n2 / nb, -n1, -n2, -np.ones(len(q))])
+        return np.column_stack([-da * n1 / nb, -da * n2 / nb, -n1, -n2, -np.ones(len(da))])
 
     r0 = resid(np.array([0.0, 0.0, 0.0, 0.0, r]))
-    q = q[np.abs(r0) <= np.percentile(np.abs(r0), 70)]  # the start's worst 30% (other faces) sit out
+    rows = rows[:, np.abs(r0) <= np.percentile(np.abs(r0), 70)]  # the start's worst 30% (other faces) sit out
     sig0 = float(np.median(np.abs(resid(np.array([0.0, 0.0, 0.0, 0.0, r]))))) + 1e-6
     sol = least_squares(resid, np.array([0.0, 0.0, 0.0, 0.0, r]), jac=jac, loss="soft_l1", f_scale=max(sig0, 1e-4),
                         x_scale=np.array([0.05, 0.05, scale, scale, scale]), ftol=1e-6, xtol=1e-6)  # fmt: skip
@@ -81,10 +79,20 @@ def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatA
     r = float(x[4])
     if r <= 0:
         return None
-    d = p - c
-    res = np.linalg.norm(d - np.outer(d @ a, a), axis=1) - r
-    c = c + float(np.mean(d @ a)) * a
+    da, _, length = _radial(np.ascontiguousarray(p.T), c, a)
+    res = length - r
+    c = c + float(np.mean(da)) * a
     return a, c, r, float(np.sqrt(np.mean(res**2)))
+
+
+def _radial(rows: FloatArray, c: FloatArray, a: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """For points given as their (3, N) coordinate rows, with d = q - c: (N,) d.a, the (3, N) rows of the
+    radial part d - (d.a) a, and its (N,) length. Each value is the one the (N, 3) arithmetic gives (d.a is
+    taken on d laid out (N, 3), as BLAS took it), computed along contiguous rows (three times faster)."""
+    d = rows - c[:, None]
+    da = np.ascontiguousarray(d.T) @ a
+    radial = d - a[:, None] * da
+    return da, radial, np.sqrt(radial[0] * radial[0] + radial[1] * radial[1] + radial[2] * radial[2])
 
 
 def axis_basis(axis: FloatArray) -> tuple[FloatArray, FloatArray]:

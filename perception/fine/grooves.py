@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
-from perception.fine.adjacency import adjacent_pairs
+from perception.fine.adjacency import adjacent_pairs, plane_partners
 from perception.fine.folds import contact_points, plane_line
 from perception.fine.refine import near_points
 from perception.fine.runs import covered_runs
@@ -54,7 +54,9 @@ def groove_seams(
     the segmented ones; they have no pixels in ``labels``)."""
     gp = params or GrooveParams()
     p = np.asarray(points, dtype=np.float64)
-    pairs = adjacent_pairs(surfaces, noise, reach_m=0.5 * gp.max_width_m + 0.004)
+    # only nearly parallel plates are looked at: the other surfaces are not dilated by the groove's wide reach
+    among = plane_partners(surfaces, min_cos=float(np.cos(gp.max_angle_rad)), exclude=support)
+    pairs = adjacent_pairs(surfaces, noise, reach_m=0.5 * gp.max_width_m + 0.004, among=among)
     out: list[SeamCurve] = []
     extra: list[Surface] = []
     for pair in pairs:

@@ -40,8 +40,12 @@ def local_planes(points: NDArray[np.floating], *, window_px: int) -> LocalPlanes
 
     p = np.asarray(points, dtype=np.float64)
     valid = np.isfinite(p[..., 2])
-    ref = np.nanmedian(p[valid], axis=0) if valid.any() else np.zeros(3)
-    q = np.where(valid[..., None], p - ref, 0.0)  # relative to one point: small sums, no cancellation
+    ref = np.zeros(3)
+    if valid.any():  # per coordinate, in its own gathered copy: the values of np.nanmedian(p[valid], axis=0)
+        ref = np.array([np.nanmedian(p[..., k][valid], overwrite_input=True) for k in range(3)])
+    # one contiguous plane per coordinate, relative to one point (small sums, no cancellation): the filters
+    # and the per-pixel algebra below run on whole planes, not on strided (h, w, 3) views
+    qx, qy, qz = (np.where(valid, p[..., k] - ref[k], 0.0) for k in range(3))
 
     def box(img: FloatArray) -> FloatArray:
         return np.asarray(cv2.boxFilter(img, cv2.CV_64F, (window_px, window_px), normalize=False,
@@ -49,23 +53,15 @@ def local_planes(points: NDArray[np.floating], *, window_px: int) -> LocalPlanes
 
     n = box(valid.astype(np.float64))
     nn = np.maximum(n, 1.0)
-    qx, qy, qz = (np.ascontiguousarray(q[..., k]) for k in range(3))  # contiguous planes: no copies in the filter
     mx, my, mz = box(qx) / nn, box(qy) / nn, box(qz) / nn
-    m = np.stack([mx, my, mz], axis=-1)
     # the normal from the window means' central differences (a plane's means lie on it); the residual
     # variance about that plane is the quadratic form n^T C n (the eigen-solve would cost 4x more)
-    st = max(1, window_px // 2)
-    du = np.full_like(m, np.nan)
-    dv = np.full_like(m, np.nan)
-    du[:, st:-st] = m[:, 2 * st :] - m[:, : -2 * st]
-    dv[st:-st, :] = m[2 * st :, :] - m[: -2 * st, :]
-    normal = np.cross(du, dv)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    nx, ny, nz = _mean_normal((mx, my, mz), max(1, window_px // 2))
+    normal = np.stack([nx, ny, nz], axis=-1)
     with np.errstate(invalid="ignore"):
         flip = np.einsum("hwk,hwk->hw", normal, p) > 0  # NaN (an invalid pixel) is never > 0
-    normal[flip] *= -1
-    nx, ny, nz = normal[..., 0], normal[..., 1], normal[..., 2]
+    for c in (nx, ny, nz):
+        np.negative(c, out=c, where=flip)
     cxx = box(qx * qx) / nn - mx**2
     cxy = box(qx * qy) / nn - mx * my
     cxz = box(qx * qz) / nn - mx * mz
@@ -77,8 +73,26 @@ def local_planes(points: NDArray[np.floating], *, window_px: int) -> LocalPlanes
     var = np.clip(var, 0.0, None)
     few = (n < 0.5 * window_px * window_px) | ~valid | ~np.isfinite(var)
     var[few] = np.nan
-    normal[few] = np.nan
+    normal = np.stack([np.where(few, np.nan, c) for c in (nx, ny, nz)], axis=-1)
     return LocalPlanes(n, normal, var, var / total, window_px)
+
+
+def _mean_normal(m: tuple[FloatArray, FloatArray, FloatArray], st: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(nx, ny, nz) (h, w) planes of the unit normal of the window means ``m`` (x, y, z planes): the cross
+    product of their central differences ``st`` pixels to either side along a row and down a column (NaN
+    within ``st`` of the border), in NumPy's own order of operations (``np.cross``, ``np.linalg.norm``)."""
+    du, dv = [], []
+    for c in m:
+        du.append(np.full_like(c, np.nan))
+        dv.append(np.full_like(c, np.nan))
+        du[-1][:, st:-st] = c[:, 2 * st :] - c[:, : -2 * st]
+        dv[-1][st:-st, :] = c[2 * st :, :] - c[: -2 * st, :]
+    nx = du[1] * dv[2] - du[2] * dv[1]
+    ny = du[2] * dv[0] - du[0] * dv[2]
+    nz = du[0] * dv[1] - du[1] * dv[0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+        return nx / norm, ny / norm, nz / norm
 
 
 def estimate_noise(points: NDArray[np.floating], planes: LocalPlanes) -> NoiseModel:

@@ -21,7 +21,7 @@ from perception.fine.cylinder import axis_basis, circle_across
 from perception.fine.folds import plane_line, ring_points
 from perception.fine.root import open_root
 from perception.fine.runs import covered_runs, trim_stray_tails
-from perception.fine.surfaces import _fit_plane
+from perception.fine.surfaces import _fit_plane, fit_plane_rows
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
 
 COPY_SIGMA = 1.5  # see _others_residual
@@ -179,6 +179,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         return s
     far, far_lab = (np.zeros((0, 3)), np.zeros(0, dtype=np.int32)) if beyond is None else beyond
     sig_far = noise.sigma_m(far[:, 2])
+    far_groups = [(int(k), np.flatnonzero(far_lab == k)) for k in np.unique(far_lab)]  # per surface, found once
     sig = noise.sigma_m(q[:, 2])
     spacing = noise.spacing_m(q[:, 2])
     a, b = A, B
@@ -187,12 +188,13 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     line0 = p0
     for _ in range(rp.iterations):
         ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
-        da, db = (q - line0) @ va, (q - line0) @ vb
+        dl = q - line0
+        da, db = dl @ va, dl @ vb
         # near the corner a point lies within the noise of both faces: those points would pull each plane
         # towards the other, so the fits use what lies beyond a few sigma of the current line
-        dl = q - line0
         tl = dl @ u
-        dist = np.sqrt(np.maximum((dl * dl).sum(axis=1) - tl * tl, 0.0))
+        sq = dl * dl
+        dist = np.sqrt(np.maximum(sq[:, 0] + sq[:, 1] + sq[:, 2] - tl * tl, 0.0))  # the row sums' own order
         clear = dist > rp.corner_sigma * sig + spacing
         # a point another surface explains better is not this pair's (fragments of the pair's own faces are
         # not among the others: choosing between two near-copies of a face would bias its fit)
@@ -210,7 +212,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         on_b &= _short_of_far_edge(db, on_b, margin, rp.band_m)
         if on_a.sum() < 10 or on_b.sum() < 10:
             return s
-        fa, fb = _beyond_band(far, far_lab, sig_far, (a, b), (A.label, B.label), line0, (va, vb), rp)
+        fa, fb = _beyond_band(far, far_groups, sig_far, (a, b), (A.label, B.label), line0, (va, vb), rp)
         a = _refit(a, A, q[on_a], fa, weight_beyond)
         b = _refit(b, B, q[on_b], fb, weight_beyond)
         line = plane_line(a, b, 0.5 * (p0 + p1), along=u)
@@ -222,7 +224,8 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     # a V-groove's open root: the two bevels stop short of their intersection and the camera sees through
     # between them; the seam is the middle of their lower edges (the other folds' seam is the intersection)
     ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
-    da, db = (q - line0) @ va, (q - line0) @ vb
+    dl = q - line0
+    da, db = dl @ va, dl @ vb
     all_a = (ra <= rb) & (ra <= others) & (da > -0.0005) & (da <= rp.band_m) & (ra <= rp.inlier_sigma * sig)
     all_b = (rb < ra) & (rb <= others) & (db > -0.0005) & (db <= rp.band_m) & (rb <= rp.inlier_sigma * sig)
     if all_a.sum() < 10 or all_b.sum() < 10:
@@ -254,28 +257,30 @@ def _root_line(q: FloatArray, sig: FloatArray, line0: FloatArray, u: FloatArray,
     return 0.5 * (edge_a + edge_b), float(np.linalg.norm(edge_b - edge_a))
 
 
-def _beyond_band(far: FloatArray, labels: NDArray[np.int32], sig: FloatArray, planes: tuple[Surface, Surface],
-                 own: tuple[int, int], line0: FloatArray, across: tuple[FloatArray, FloatArray],
-                 rp: RefineParams) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+def _beyond_band(far: FloatArray, groups: list[tuple[int, NDArray[np.intp]]], sig: FloatArray,
+                 planes: tuple[Surface, Surface], own: tuple[int, int], line0: FloatArray,
+                 across: tuple[FloatArray, FloatArray], rp: RefineParams) -> tuple[FloatArray, FloatArray]:  # fmt: skip
     """Beyond the band, each face's points: those of the face and of its fragments, on its side of the line,
-    within the noise of its current plane and nearer it than the other face's."""
+    within the noise of its current plane and nearer it than the other face's. ``groups``: each surface
+    label among the points with their indices."""
     ra, rb = (np.abs(S.residual(far)) for S in planes)
+    d = far - line0
     out = []
     for r_own, r_other, label, v in ((ra, rb, own[0], across[0]), (rb, ra, own[1], across[1])):
-        keep = _fragments(labels, r_own, sig, label) & ((far - line0) @ v > rp.band_m)
+        keep = _fragments(groups, r_own, sig, label) & (d @ v > rp.band_m)
         out.append(far[keep & (r_own <= rp.inlier_sigma * sig) & (r_own <= r_other)])
     return out[0], out[1]
 
 
-def _fragments(labels: NDArray[np.int32], res: FloatArray, sig: FloatArray, own: int) -> NDArray[np.bool_]:
+def _fragments(groups: list[tuple[int, NDArray[np.intp]]], res: FloatArray, sig: FloatArray,
+               own: int) -> NDArray[np.bool_]:  # fmt: skip
     """Per point: whether its surface is ``own`` or a fragment of the same face (most of its points lie
     within the noise of the face's current plane: median |residual| under COPY_SIGMA, the rule of
-    :func:`_others_residual`)."""
-    out = labels == own
-    for k in np.unique(labels):
-        m = labels == k
-        if k != own and float(np.median(res[m] / sig[m])) < COPY_SIGMA:
-            out |= m
+    :func:`_others_residual`). ``groups``: each surface label among the points with their indices."""
+    out = np.zeros(len(res), bool)
+    for k, idx in groups:
+        if k == own or float(np.median(res[idx] / sig[idx], overwrite_input=True)) < COPY_SIGMA:
+            out[idx] = True
     return out
 
 
@@ -293,17 +298,18 @@ def _robust_plane_fit(p: FloatArray, weights: FloatArray, *, iterations: int = 8
     falls smoothly to zero at TUKEY_C robust sigmas (the residuals' MAD), so that the few points of another
     surface that pass the gates (the last pixel row of a convex edge beside a face seen a few pixels wide)
     do not tilt the plane, while the face's own noise keeps 95% of the least-squares efficiency."""
-    n, off, _ = _fit_plane(p, weights)
+    rows = np.ascontiguousarray(p.T)  # the (3, N) layout every refit's moments are taken in
+    n, off, _ = fit_plane_rows(p, rows, weights)
     for _ in range(iterations):
         r = p @ n + off
-        scale = 1.4826 * float(np.median(np.abs(r)))
+        scale = 1.4826 * float(np.median(np.abs(r), overwrite_input=True))
         if scale <= 0.0:
             break
         x = r / (TUKEY_C * scale)
         w = weights * np.where(np.abs(x) < 1.0, (1.0 - x * x) ** 2, 0.0)
         if w.sum() <= 0.0 or np.count_nonzero(w) < 10:
             break
-        n, off, _ = _fit_plane(p, w)
+        n, off, _ = fit_plane_rows(p, rows, w)
     return n, off
 
 

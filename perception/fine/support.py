@@ -28,13 +28,14 @@ def find_support(
     other piece of the same plane (the table seen on both sides of the part); empty when none qualifies."""
     p = np.asarray(points, dtype=np.float64)
     valid = np.isfinite(p[..., 2])
-    q = p[valid][:: max(1, int(valid.sum()) // 40000)]
+    every = np.flatnonzero(valid)
+    q = p.reshape(-1, 3)[every[:: max(1, len(every) // 40000)]]  # the sample, gathered alone
+    tol = 6.0 * noise.sigma_m(q[:, 2]) + 0.002
     labelled = int((surfaces.labels >= 0).sum())
     best, best_n = None, 0
     for s in surfaces.surfaces:
         if s.kind != "plane" or s.label in prompted or s.n_points < MIN_SHARE * labelled:
             continue
-        tol = 6.0 * noise.sigma_m(q[:, 2]) + 0.002
         above = (q @ s.normal + s.offset) >= -tol
         if above.mean() >= ABOVE_SHARE and s.n_points > best_n:
             best, best_n = s.label, s.n_points

@@ -26,6 +26,7 @@ from perception.fine.groups import Groups
 from perception.fine.noise import LocalPlanes
 from perception.fine.parallel import split_parallel
 from perception.fine.types import NoiseModel, Surface, SurfaceSet
+from perception.fits import mean_rows, sum_rows
 
 FloatArray = NDArray[np.float64]
 
@@ -50,15 +51,27 @@ class SurfaceParams:
 def _fit_plane(p: FloatArray, weights: FloatArray | None = None) -> tuple[FloatArray, float, float]:
     """Least-squares plane of (N, 3) points, each weighted by ``weights`` when given: unit normal (towards the
     camera), offset, RMS residual."""
+    return fit_plane_rows(p, np.ascontiguousarray(p.T), weights)
+
+
+def fit_plane_rows(p: FloatArray, rows: FloatArray,
+                   weights: FloatArray | None = None) -> tuple[FloatArray, float, float]:  # fmt: skip
+    """:func:`_fit_plane` of (N, 3) points ``p`` also given as their (3, N) coordinate rows ``rows`` (a fit
+    that refits the same points keeps both). The centroid is summed over ``p``
+    (:func:`perception.fits.sum_rows`) and the points are centred and weighted in ``rows``, where that is one
+    pass along each row (on (N, 3) rows it is a loop three values wide, ten times slower); every value is the
+    one the (N, 3) arithmetic gives, the scatter matrix's product included (BLAS is handed the same matrices,
+    in the other layout)."""
     if weights is None:
-        c = p.mean(axis=0)
-        q = p - c
-        w, v = np.linalg.eigh(q.T @ q / max(len(p), 1))
+        c = mean_rows(p)
+        q = rows - c[:, None]
+        w, v = np.linalg.eigh(q @ q.T / max(len(p), 1))
     else:
-        c = (weights[:, None] * p).sum(axis=0) / weights.sum()
-        q = p - c
-        w, v = np.linalg.eigh((weights[:, None] * q).T @ q)
-        w = w / weights.sum()
+        total = weights.sum()
+        c = sum_rows(p, weights) / total
+        q = rows - c[:, None]
+        w, v = np.linalg.eigh((q * weights) @ q.T)
+        w = w / total
     n = v[:, 0]
     if n @ c > 0:  # towards the camera
         n = -n
@@ -68,8 +81,8 @@ def _fit_plane(p: FloatArray, weights: FloatArray | None = None) -> tuple[FloatA
 def _two_dimensional(q: FloatArray, spacing_m: float, sp: SurfaceParams) -> bool:
     """A plane needs support in two directions: points along a strip a pixel or two wide fit any plane
     through their line (a face seen at a grazing angle, a thin edge)."""
-    c = q - q.mean(axis=0)
-    w = np.linalg.eigvalsh(c.T @ c / max(len(q), 1))
+    c = np.ascontiguousarray(q.T) - mean_rows(q)[:, None]  # centred in (3, N) rows (see fit_plane_rows)
+    w = np.linalg.eigvalsh(c @ c.T / max(len(q), 1))
     return bool(np.sqrt(max(w[1], 0.0)) >= sp.min_width_px * spacing_m)
 
 
@@ -103,7 +116,12 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
         good = norm > 1e-9
         nn = nn[good] / norm[good, None]
         dd = -(nn * a[good]).sum(axis=1)
-        cnt = (np.abs(q[sample] @ nn.T + dd) <= tol[sample, None]).sum(axis=0)
+        # every trial's distances in one (sample, trials) matrix, worked on in place: a few MB per temporary,
+        # and each fresh one costs its page faults (it was 8x slower)
+        dist = q[sample] @ nn.T
+        dist += dd
+        np.abs(dist, out=dist)
+        cnt = (dist <= tol[sample, None]).sum(axis=0)
         if cnt.size == 0:
             break
         k = int(np.argmax(cnt))
@@ -163,7 +181,7 @@ def _components(p: FloatArray, planes: LocalPlanes, noise: NoiseModel,
     for link, (dy, dx) in ((link_r, (0, 1)), (link_d, (1, 0))):
         a = (slice(0, h - dy), slice(0, w - dx))
         b = (slice(dy, h), slice(dx, w))
-        dp = np.nan_to_num(p[b] - p[a])
+        dp = np.nan_to_num(p[b] - p[a], copy=False)
         off = np.abs(np.einsum("ijk,ijk->ij", dp, n[a]))
         link[a] = ok_px[a] & ok_px[b] & (off < sp.jump_sigma * sigma[a] + 0.5 * spacing[a])
     big = np.zeros((2 * h - 1, 2 * w - 1), np.uint8)
@@ -194,7 +212,7 @@ def segment_surfaces(
 
     surfaces: list[Surface] = []
     labels = np.full(z.shape, -1, np.int32)
-    order = np.argsort(comp.ravel(), kind="stable")
+    order = _stable_order(comp.ravel(), len(counts))
     starts = np.searchsorted(comp.ravel()[order], np.arange(len(counts)))
     rng = np.random.default_rng(0)
     queue = deque(order[starts[c] : starts[c] + counts[c]] for c in np.flatnonzero(counts >= sp.min_pixels))
@@ -210,6 +228,12 @@ def segment_surfaces(
     if len(surfaces) > n_before:  # a split plate's part may be one plane with its neighbour (a strip by its edge)
         labels, surfaces = _merge_coplanar(p, labels, surfaces, noise, sp)
     return SurfaceSet(labels, factor, tuple(surfaces))
+
+
+def _stable_order(keys: NDArray[np.int32], n_keys: int) -> NDArray[np.intp]:
+    """``np.argsort(keys, kind="stable")`` of labels -1 .. n_keys - 1: sorted as int16 when they fit (a stable
+    sort's order is unique, and NumPy radix-sorts 16-bit keys, three times faster)."""
+    return np.argsort(keys.astype(np.int16) if n_keys < 2**15 - 1 else keys, kind="stable")
 
 
 def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: FloatArray, noise: NoiseModel,
@@ -239,7 +263,7 @@ def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: F
     if not _two_dimensional(q[::th], spacing_c, sp):
         return [], []
     if inl.mean() >= sp.plane_share:
-        s = Surface(-1, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc)
+        s = Surface(-1, "plane", nrm, d, rms, int(inl.sum()), mean_rows(q[inl]), zc)
         out_px = idx[~inl]
         return [(s, idx[inl])], [out_px[k] for k in _connected_pieces(out_px, w, sp.min_pixels)]
     out: list[tuple[Surface, NDArray[np.int64]]] = []
@@ -263,7 +287,7 @@ def _planes_of(q: FloatArray, idx: NDArray[np.int64], tol: FloatArray, width: in
     for sub in _ransac_planes(q, tol, sp.min_pixels, rng, pixels=idx, width=width):
         if _two_dimensional(q[sub], spacing, sp):
             nrm, d, rms = _fit_plane(q[sub])
-            out.append((Surface(-1, "plane", nrm, d, rms, len(sub), q[sub].mean(axis=0), zc), idx[sub]))
+            out.append((Surface(-1, "plane", nrm, d, rms, len(sub), mean_rows(q[sub]), zc), idx[sub]))
     return out
 
 
@@ -316,7 +340,7 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
         if cyl is None or not 0.003 < cyl[2] < 1.0:
             return None
         axis, centre, r, _ = cyl
-        trial = Surface(-1, "cylinder", np.zeros(3), 0.0, 0.0, 0, q.mean(axis=0), zc, axis=axis, centre=centre,
+        trial = Surface(-1, "cylinder", np.zeros(3), 0.0, 0.0, 0, mean_rows(q), zc, axis=axis, centre=centre,
                         radius=r)  # fmt: skip
         cres = np.abs(trial.residual(q))
         inl = cres <= tol
@@ -338,7 +362,7 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
     if sum(len(k) for k in planes) + min_points > inl.sum():
         return None
     crms = float(np.sqrt(np.mean(cres[inl] ** 2)))
-    return replace(trial, label=label, rms_m=crms, n_points=int(inl.sum()), centroid=q[inl].mean(axis=0)), inl
+    return replace(trial, label=label, rms_m=crms, n_points=int(inl.sum()), centroid=mean_rows(q[inl])), inl
 
 
 def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
@@ -382,12 +406,12 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
             continue
         if inl.sum() < sp.narrow_min_pixels:
             continue
-        c_ = q[inl] - q[inl].mean(axis=0)
+        c_ = q[inl] - mean_rows(q[inl])
         w = np.linalg.eigvalsh(c_.T @ c_ / len(c_))
         if np.sqrt(max(w[1], 0.0)) < sp.narrow_min_width_px * spacing:
             continue
         k = len(surfaces)
-        surfaces.append(Surface(k, "plane", nrm, d, rms, int(inl.sum()), q[inl].mean(axis=0), zc))
+        surfaces.append(Surface(k, "plane", nrm, d, rms, int(inl.sum()), mean_rows(q[inl]), zc))
         lab.reshape(-1)[idx[inl]] = k
     return lab
 
@@ -472,7 +496,12 @@ def _free_beside(cy: NDArray[np.int64], cx: NDArray[np.int64], lab: NDArray[np.i
     ys = np.concatenate([cy + dy for dy, _ in neighbours])
     xs = np.concatenate([cx + dx for _, dx in neighbours])
     inside = (ys >= 0) & (ys < h) & (xs >= 0) & (xs < w)
-    flat = np.unique(ys[inside] * w + xs[inside])
+    flat = ys[inside] * w + xs[inside]
+    if len(flat):  # np.unique's sorted distinct values, from marks over their range (no sort)
+        lo = int(flat.min())
+        mark = np.zeros(int(flat.max()) - lo + 1, bool)
+        mark[flat - lo] = True
+        flat = np.flatnonzero(mark) + lo
     ys, xs = flat // w, flat % w
     free = valid[ys, xs] & (lab[ys, xs] < 0)
     return ys[free], xs[free]
@@ -484,17 +513,19 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
     """Neighbouring planes that are strips of one cylinder become that cylinder. A pipe of small radius seen
     from afar turns so fast that the fold test cuts it into strips a few pixels wide, each flat within the
     noise: neighbours whose normals differ by less than a fold and whose union one cylinder fits are one."""
-    from perception.fine.adjacency import adjacent_pairs
+    from perception.fine.adjacency import adjacent_pairs, plane_partners
 
     plane_ids = [s.label for s in surfaces if s.kind == "plane"]
     if len(plane_ids) < 2:
         return labels, surfaces
     z_typ = float(np.median([s.z_m for s in surfaces]))
-    pairs = adjacent_pairs(SurfaceSet(labels, 1, tuple(surfaces)), noise, reach_m=4.0 * float(noise.spacing_m(z_typ)))
+    lo_cos, hi_cos = np.cos(np.radians(60.0)), np.cos(sp.merge_angle_rad)
+    surf = SurfaceSet(labels, 1, tuple(surfaces))
+    pairs = adjacent_pairs(surf, noise, reach_m=4.0 * float(noise.spacing_m(z_typ)),
+                           among=plane_partners(surf, min_cos=float(lo_cos), max_cos=float(hi_cos)))  # fmt: skip
     groups_of = Groups(plane_ids)
     find = groups_of.find
 
-    lo_cos, hi_cos = np.cos(np.radians(60.0)), np.cos(sp.merge_angle_rad)
     for pr in pairs:
         A, B = surfaces[pr.a], surfaces[pr.b]
         if A.kind != "plane" or B.kind != "plane" or not lo_cos < float(A.normal @ B.normal) < hi_cos:
@@ -588,15 +619,12 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
         for code in np.unique(lo * n_lab + hi).tolist():
             touching.add((code // n_lab, code % n_lab))
     cos_m = np.cos(sp.merge_angle_rad)
-    pf = np.nan_to_num(p)
     flat = labels.reshape(-1)
-    order = np.argsort(flat, kind="stable")
-    starts = np.searchsorted(flat[order], np.arange(n_lab + 1))
-    pts_flat = pf.reshape(-1, 3)
+    pts_flat = p.reshape(-1, 3)
 
     def sample(lab: int) -> FloatArray:
-        idx = order[starts[lab] : starts[lab + 1]]
-        return pts_flat[idx[:: max(1, len(idx) // 2000)]]
+        idx = np.flatnonzero(flat == lab)  # only the few pieces a pair needs, not a sort of the whole image
+        return np.nan_to_num(pts_flat[idx[:: max(1, len(idx) // 2000)]])
 
     for u, v in sorted(touching):
         su, sv = surfaces[u], surfaces[v]
@@ -623,7 +651,7 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
             merged.append(Surface(k, s.kind, s.normal, s.offset, s.rms_m, s.n_points, s.centroid, s.z_m, s.axis,
                                   s.centre, s.radius))  # fmt: skip
             continue
-        q = pf[new_labels == k]
+        q = np.nan_to_num(p[new_labels == k])
         nrm, d, rms = _fit_plane(q[:: max(1, len(q) // 20000)])
-        merged.append(Surface(k, "plane", nrm, d, rms, len(q), q.mean(axis=0), float(np.median(q[:, 2]))))
+        merged.append(Surface(k, "plane", nrm, d, rms, len(q), mean_rows(q), float(np.median(q[:, 2]))))
     return new_labels, merged

@@ -13,9 +13,11 @@ from perception.fits import (
     fit_plane,
     fit_plane_robust,
     line_coordinates,
+    mean_rows,
     order_along_curve,
     orient_towards,
     plane_intersection,
+    sum_rows,
 )
 
 
@@ -89,3 +91,15 @@ def test_components_and_the_order_along_a_curve() -> None:
     if got[0] > got[-1]:  # either end may be the start
         got = got.max() - got
     np.testing.assert_allclose(got, expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("order", ["C", "F", "strided"])
+def test_sum_rows_and_mean_rows_are_numpys_own_values_bit_for_bit(order: str) -> None:
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 7, 1000, 40001):
+        p = rng.normal(size=(2 * n, 3)) * 0.01 + [0.1, -0.2, 0.6]
+        w = rng.uniform(0.0, 2.0, size=2 * n)
+        p, w = (p[::2], w[::2]) if order == "strided" else (np.asarray(p[:n], order=order), w[:n])
+        assert np.array_equal(sum_rows(p), p.sum(axis=0))
+        assert np.array_equal(sum_rows(p, w), (w[:, None] * p).sum(axis=0))
+        assert np.array_equal(mean_rows(p), p.mean(axis=0))

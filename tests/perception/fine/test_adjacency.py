@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.fine.adjacency import adjacent_pairs
+from perception.fine.adjacency import adjacent_pairs, plane_partners
 
 from .scenes import rendered, work
 
@@ -46,3 +46,23 @@ def test_no_pair_without_contact() -> None:
     labels = {s.label for s in surf.surfaces}
     for q in adjacent_pairs(surf, nm):
         assert q.a < q.b and {q.a, q.b} <= labels and len(q.contact_px) >= 6
+
+
+def test_pairs_among_some_surfaces_are_exactly_those_of_all_pairs() -> None:
+    _, _, nm, surf = work("tee")
+    every = adjacent_pairs(surf, nm)
+    among = {every[0].a, every[0].b}
+    some = adjacent_pairs(surf, nm, among=among)
+    expected = [q for q in every if {q.a, q.b} <= among]
+    assert [(q.a, q.b) for q in some] == [(q.a, q.b) for q in expected]
+    assert all(np.array_equal(q.contact_px, e.contact_px) for q, e in zip(some, expected, strict=True))
+
+
+def test_plane_partners_are_the_planes_with_a_plane_at_the_cosine_asked_for() -> None:
+    _, _, _, surf = work("tee")
+    planes = [s for s in surf.surfaces if s.kind == "plane"]
+    cos = {(s.label, t.label): float(s.normal @ t.normal) for s in planes for t in planes if s.label != t.label}
+    for lo, hi in ((0.99, 1.0), (np.cos(np.radians(60.0)), np.cos(np.radians(3.0))), (-1.0, 1.0)):
+        expected = {a for (a, _), c in cos.items() if lo <= c <= hi}
+        assert plane_partners(surf, min_cos=lo, max_cos=hi) == expected
+    assert plane_partners(surf, min_cos=-1.0, exclude={planes[0].label}) <= {s.label for s in planes[1:]}

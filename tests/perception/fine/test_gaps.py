@@ -59,7 +59,6 @@ def test_a_plate_without_a_gap_gives_none() -> None:
                            support=find_support(p, surf, nm)) == []  # fmt: skip
 
 
-
 def test_rows_of_dropouts_on_the_bars_end_faces_seen_from_above_are_not_butt_gaps() -> None:
     """The sim FANUC cell's camera at home looks straight down on the ribs scene: the bars' end faces stand at
     73-74 degrees to its rays, and on stereo frame 7 a row of dropouts runs along each. Found as "gaps" 1.1 mm
@@ -86,3 +85,13 @@ def test_rows_of_dropouts_on_the_bars_end_faces_seen_from_above_are_not_butt_gap
     for seam in result.seams:
         torch_z_base = seam.poses[:, :3, 2] @ R_base_camera.T
         assert np.degrees(np.arccos(-torch_z_base[:, 2])).max() < 60.0
+
+
+def test_dots_are_einsums_values_bit_for_bit() -> None:
+    from perception.fine.gaps import _dots
+
+    rng = np.random.default_rng(11)
+    for n, t in ((1, 1), (7, 3), (5000, 290)):
+        pts = rng.normal(size=(n, 3)) * 0.1 + [0.05, 0.02, 0.6]
+        a = np.cross([0.0, 0.0, 1.0], rng.normal(size=(t, 3)))
+        assert np.array_equal(_dots(a, np.ascontiguousarray(pts.T)), np.einsum("tk,nk->tn", a, pts))

@@ -214,3 +214,24 @@ def test_a_narrow_strip_of_a_plane_joins_it_even_when_its_own_plane_is_tilted() 
     new_labels, merged = _merge_coplanar(pts, labels, surfaces, noise, SurfaceParams())
     assert len(merged) == 1 and (new_labels == 0).all()
     assert abs(abs(merged[0].normal[2]) - 1.0) < 1e-5 and abs(abs(merged[0].offset) - 0.6) < 1e-4
+
+
+def test_a_plane_fitted_in_rows_is_the_one_fitted_in_points_bit_for_bit() -> None:
+    from perception.fine.surfaces import _fit_plane, fit_plane_rows
+
+    rng = np.random.default_rng(5)
+    p = rng.normal(size=(5000, 3)) * [0.05, 0.04, 0.0002] + [0.02, -0.01, 0.6]
+    w = rng.uniform(0.0, 1.0, len(p))
+    rows = np.ascontiguousarray(p.T)
+    # the plain (N, 3) arithmetic the fit has always done
+    c = p.mean(axis=0)
+    ev, v = np.linalg.eigh((p - c).T @ (p - c) / len(p))
+    n = -v[:, 0] if v[:, 0] @ c > 0 else v[:, 0]
+    got = fit_plane_rows(p, rows)
+    assert np.array_equal(got[0], n) and got[1] == -float(n @ c) and got[2] == float(np.sqrt(ev[0]))
+    cw = (w[:, None] * p).sum(axis=0) / w.sum()
+    ev, v = np.linalg.eigh((w[:, None] * (p - cw)).T @ (p - cw))
+    n = -v[:, 0] if v[:, 0] @ cw > 0 else v[:, 0]
+    got = fit_plane_rows(p, rows, w)
+    assert np.array_equal(got[0], n) and got[1] == -float(n @ cw) and got[2] == float(np.sqrt(ev[0] / w.sum()))
+    assert all(np.array_equal(a, b) for a, b in zip(_fit_plane(p, w), got, strict=True))
