@@ -356,7 +356,10 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
     lo, hi = min(t0, t1) - rp.end_slack_m, max(t0, t1) + rp.end_slack_m
     nb = max(1, int(np.ceil((hi - lo) / rp.end_bin_m)))
 
-    inner = slice(int((min(t0, t1) - lo) / rp.end_bin_m), int((max(t0, t1) - lo) / rp.end_bin_m))
+    # the coarse stretch's bins: it starts end_slack_m into the window, a whole number of bins, which is counted,
+    # not divided out of coordinates (int(6.0 - 1 ulp) is 5 for a quarter of the places a seam may start)
+    first = round(rp.end_slack_m / rp.end_bin_m)
+    inner = slice(first, first + int((max(t0, t1) - min(t0, t1)) / rp.end_bin_m))
 
     def cover(t: FloatArray) -> NDArray[np.bool_]:
         k = np.floor((t[(t >= lo) & (t < hi)] - lo) / rp.end_bin_m).astype(int)

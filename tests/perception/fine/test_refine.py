@@ -144,3 +144,24 @@ def test_a_face_seen_again_past_a_hole_keeps_its_end() -> None:
     assert ends is not None
     t = np.sort(ends @ u)
     assert abs(t[1] - 0.059) < 0.0005
+
+
+def test_the_ends_do_not_depend_on_where_the_line_coordinates_start() -> None:
+    # the same faces and seam, the line's origin moved along it: the ends found are the same points. The coarse
+    # stretch's first bin was int((t0 - (t0 - 6 mm)) / 1 mm), 5 instead of 6 for about a quarter of the places
+    # t0 may fall; a slack bin with points then counted in how wide the bins are widened, and an end moved
+    # (draw 7 here: two different ends over 201 origins)
+    nm, floor, wall, u, z0 = _floor_and_wall()
+    length = 0.010
+    for seed in (7, 0, 1, 2):
+        rng = np.random.default_rng(seed)
+        qa = np.column_stack([rng.uniform(-0.004, length, 120), rng.uniform(0.0012, 0.005, 120), np.full(120, z0)])
+        tb = rng.uniform(-0.004, length, 14)  # a sparse wall: a bin's count more or less changes the widening
+        qb = np.column_stack([tb, np.zeros(len(tb)), z0 - rng.uniform(0.0015, 0.005, len(tb))])
+        found = set()
+        for shift in np.linspace(-0.2, 0.2, 201):
+            origin = np.array([0.0, 0.0, z0]) + shift * u
+            ends = _supported_ends(qa, qb, floor, wall, origin, u, -shift, length - shift, nm, RefineParams())
+            assert ends is not None
+            found.add(tuple(np.round(np.sort((ends - np.array([0.0, 0.0, z0])) @ u), 9)))
+        assert len(found) == 1, (seed, found)
