@@ -122,15 +122,16 @@ def _work_resolution_steps(
         surf = segment_surfaces(work, planes, noise, factor=factor)
     log.counts["surfaces"] = len(surf.surfaces)
     with log.step("support"):
-        prompted = prompted_labels(capture.prompts_px, surf)
         support = find_support(work, surf, noise)
     with log.step("adjacency"):
         pairs = adjacent_pairs(surf, noise)
     log.counts["pairs"] = len(pairs)
     with log.step("workpiece"):
+        prompted = prompted_labels(capture.prompts_px, surf)
         workpiece = workpiece_labels(work, surf, pairs, noise, prompted=prompted, support=support)
-        # never a seam's face: the support, and with prompts every surface not joined to a prompted one
-        skip = support if workpiece is None else frozenset(range(len(surf.surfaces))) - (workpiece - support)
+        # never a seam's face: the support, and with prompts every surface not joined to a prompted one (the
+        # workpiece never holds a support surface: it is neither started from nor reached through)
+        skip = support if workpiece is None else frozenset(range(len(surf.surfaces))) - workpiece
     log.counts["workpiece"] = len(surf.surfaces) if workpiece is None else len(workpiece)
     with log.step("folds"):
         curves = [c for c in fold_seams(work, surf, pairs, noise, support=support) if not set(c.surfaces) & skip]

@@ -273,8 +273,7 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
         centre, width = 0.5 * (edge_l + edge_r), edge_r - edge_l
     # a gap narrower than the sample spacing across it (on the plane, foreshortened by the view) holds no
     # sample for sure: what looks like one is a row of dropouts (a face seen at a grazing angle)
-    view = c3 / float(np.linalg.norm(c3))
-    if width < float(noise_full.spacing_m(float(c3[2]))) / np.sqrt(max(1.0 - float(view @ across) ** 2, 1e-12)):
+    if width < float(noise_full.spacing_m(float(c3[2]))) / np.sqrt(max(1.0 - view_across**2, 1e-12)):
         return None
     mid = c3 + centre * across
     pts_seam = np.array([mid + lo * u, mid + hi * u])
