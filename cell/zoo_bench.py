@@ -4,9 +4,10 @@ Captures are rendered once and cached as ordinary capture folders (plus ``zoo.js
 drawn and the per-seam truth the scorer needs); then each is detected and scored in a process pool.
 
 Scoring (per capture, camera frame, the matching of :mod:`perception.evaluate`):
-- a ground-truth seam is **found** when a detected seam is assigned to it (median distance <= 5 mm) and the
-  assigned seams cover at least half of its length (within 3 mm); a seam found in pieces counts once and
-  its pieces are counted in ``split_seams``;
+- a ground-truth seam is **found** when a detected seam is assigned to it (median distance <= 5 mm to its
+  seen run, or to the weldment's whole seam for a detection that reaches the seen run: a seam detected past
+  the 75-degree rule is not a miss) and the assigned seams cover at least half of its seen run (within
+  3 mm); a seam found in pieces counts once and its pieces are counted in ``split_seams``;
 - a detected seam assigned to no ground-truth seam is **false**, unless it lies on a seam of the weldment
   that this shot does not count as seen (hidden, under 20 mm, or a face past 75 degrees): such a seam is
   **unseen**, neither found nor false (the visibility rules are thresholds, and a seam just past one of
@@ -186,9 +187,9 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
     dt = time.perf_counter() - t0
     X = cap.X_base_camera
     pts = [s.points if X is None else transform_points(invert_X(X), s.points) for s in result.seams]
-    rep = evaluate_seams(pts, gt)
-    found = [s.found and s.coverage >= COVER_FOUND for s in rep.seams]
     whole = [np.asarray(w["points_camera"]) for w in meta["seams"]]
+    rep = evaluate_seams(pts, gt, whole_camera=[whole[t["seam_index"]] for t in meta["truth"]])
+    found = [s.found and s.coverage >= COVER_FOUND for s in rep.seams]
     m = _point_errors(rep.seams, meta["truth"], pts, whole)
 
     # a seam assigned to no seen run but lying on a seam of the weldment is unseen, not false

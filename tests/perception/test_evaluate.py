@@ -45,3 +45,20 @@ def test_scores_count_found_false_and_covered_seams_with_their_errors() -> None:
     doc = report.to_json()
     assert (doc["found"], doc["false_seams"], doc["rmse_mm"], doc["seams"][1]["rmse_mm"]) == (1, 1, 1.0, None)
     assert not report.all_found
+
+
+def test_a_detection_past_the_seen_run_is_matched_on_the_whole_seam_and_measured_to_it() -> None:
+    # the whole seam runs 0 .. 200 mm along x; this shot counts 0 .. 40 mm as seen
+    whole = np.array([[0.0, 0.0, 0.5], [0.2, 0.0, 0.5]])
+    truth = (GroundTruthSeam("linear", np.array([[0.0, 0.0, 0.5], [0.04, 0.0, 0.5]])),)
+    x = np.linspace(0.0, 0.2, 201)
+    along_whole = np.column_stack([x, np.full_like(x, 0.0005), np.full_like(x, 0.5)])  # 0.5 mm off, all of it
+    beside = np.column_stack([x[100:], np.full_like(x[100:], 0.001), np.full_like(x[100:], 0.5)])  # never reaches
+    plain = evaluate_seams([along_whole, beside], truth)
+    assert plain.n_found == 0 and plain.false_seams == (0, 1)  # median 80 mm from the seen run
+    report = evaluate_seams([along_whole, beside], truth, whole_camera=[whole])
+    assert report.n_found == 1 and report.seams[0].detected_ids == (0,) and report.false_seams == (1,)
+    assert report.seams[0].coverage == 1.0
+    assert report.rmse_m == pytest.approx(0.0005, abs=1e-12) and report.max_m == pytest.approx(0.0005, abs=1e-12)
+    with pytest.raises(ValueError, match="whole_camera has 2 seams for 1"):
+        evaluate_seams([along_whole], truth, whole_camera=[whole, whole])
