@@ -180,7 +180,7 @@ def _full_resolution_steps(
     with log.step("merge"):
         curves = merge_collinear(curves, organized, capture.intrinsics, noise_full)
     with log.step("view"):
-        curves = clip_to_view(curves)
+        curves = clip_to_view(curves, surf, noise)
     with log.step("corners"):
         curves = join_corners(curves, noise_full)
     return curves, used

@@ -17,7 +17,8 @@
       -> refine.refine_seams         both surfaces refitted on full-resolution points near the seam (planes
                                      out to 100 mm on their faces); open roots: root.open_root
       -> merge.merge_collinear       pieces of one straight seam joined
-      -> visibility.clip_to_view     kept where both faces are seen at under 75 degrees, in runs >= 15 mm
+      -> visibility.clip_to_view     kept where both faces are seen at under 75 degrees (78 for a face that
+                                     fits its surface within 1.5 sigma, not across a gap), in runs >= 15 mm
       -> corners.join_corners        two seams meeting at a corner end at their lines' crossing
 
 Lengths in metres, angles in radians inside; the thresholds are multiples of the measured noise and of

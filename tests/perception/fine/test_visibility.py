@@ -1,4 +1,5 @@
-"""A seam is kept where both faces are seen at under 75 degrees, in runs of at least 15 mm."""
+"""A seam is kept where both faces are seen at under 75 degrees (78 for a face that fits its surface within the
+noise, except across a gap), in runs of at least 15 mm."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from perception.fine.types import SeamCurve
+from perception.fine.types import NoiseModel, SeamCurve, Surface, SurfaceSet
 from perception.fine.visibility import clip_to_view
 
 
@@ -34,3 +35,28 @@ def test_a_seam_whose_faces_are_all_grazing_is_dropped_and_a_short_run_too() -> 
     assert clip_to_view([short]) == []  # 14 mm
     longer = replace(short, points=short.points * [16 / 14, 1, 1])
     assert len(clip_to_view([longer])) == 1  # 16 mm
+
+
+def _surfaces(rms_b_m: float) -> tuple[SurfaceSet, NoiseModel]:
+    a = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), 0.5, 1e-4, 1000, np.array([0.0, 0.1, 0.5]), 0.5)
+    b = Surface(1, "plane", np.array([1.0, 0.0, 0.0]), 0.0, rms_b_m, 1000, np.array([0.0, 0.0, 0.5]), 0.5)
+    labels = np.zeros((4, 4), np.int32)
+    return SurfaceSet(labels, 1, (a, b)), NoiseModel(sigma_1m_m=0.001, floor_m=1e-6, pixel_angle_rad=0.001)
+
+
+@pytest.mark.parametrize(
+    ("rms_b_m", "joint", "limit_deg"),
+    [
+        (0.00037, "fillet", 78.0),  # 1.48 sigma at 0.5 m (sigma 0.25 mm): a face, seen to 78 degrees
+        (0.00038, "fillet", 75.0),  # 1.52 sigma: a grazing strip that does not fit its plane, cut at 75
+        (0.00010, "butt", 75.0),  # a gap's seam never past 75 degrees, however well its faces fit
+    ],
+)
+def test_a_face_that_fits_within_the_noise_counts_as_seen_to_78_degrees(rms_b_m: float, joint: str,
+                                                                         limit_deg: float) -> None:  # fmt: skip
+    surf, noise = _surfaces(rms_b_m)
+    seam = replace(seam_along_x(np.array([1.0, 0.0, 0.0])), joint=joint)
+    (kept,) = clip_to_view([seam], surf, noise)
+    assert kept.points[:, 0].max() == pytest.approx(-0.5 / np.tan(np.radians(limit_deg)), abs=0.0011)
+    (plain,) = clip_to_view([seam])  # without the surfaces and the noise: the 75-degree rule alone
+    assert plain.points[:, 0].max() == pytest.approx(-0.5 / np.tan(np.radians(75.0)), abs=0.0011)
