@@ -167,13 +167,17 @@ def _full_resolution_steps(
     from perception.fine.visibility import clip_to_view
 
     noise_full = _full(noise, surf.factor)
+    # the crop: the full-resolution pixels the fine steps read in bands around the seams (the candidate
+    # searches, like the paper's segmenter, look at the whole image: the surfaces at the work resolution,
+    # the inner gaps at each plate's depth; merge's checks lie on refined seams' lines, inside their bands)
+    read = np.zeros(organized.shape[:2], dtype=bool)
     with log.step("refine"):
-        curves, used = refine_seams(curves, organized, capture.intrinsics, surf, noise_full)
-    log.counts["cropped"] = used
+        curves, _ = refine_seams(curves, organized, capture.intrinsics, surf, noise_full, read=read)
     with log.step("inner_gaps"):
         curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=skip)
     with log.step("steps"):
-        steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=skip)
+        steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=skip,
+                           read=read)  # fmt: skip
         # a step places the lap's edge from both plates and the edge face's own points; a fold on the narrow
         # edge face, fitted on a few pixels, is the weaker estimate of the same seam
         curves = [c for c in curves if not _duplicates(c, steps)] + steps
@@ -183,6 +187,8 @@ def _full_resolution_steps(
         curves = clip_to_view(curves, surf, noise)
     with log.step("corners"):
         curves = join_corners(curves, noise_full)
+    used = int(read.sum())
+    log.counts["cropped"] = used
     return curves, used
 
 

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
 from perception.fine.cylinder import axis_basis, circle_across
-from perception.fine.folds import plane_line, ring_points
+from perception.fine.folds import line_coords, plane_line, ring_points
 from perception.fine.root import open_root
 from perception.fine.runs import covered_runs, trim_stray_tails
 from perception.fine.surfaces import _fit_plane, fit_plane_rows
@@ -43,22 +43,35 @@ class RefineParams:
     end_slack_m: float = 0.006  # the ends may move this far beyond the coarse ones
 
 
-def near_points(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatArray, band_m: float) -> FloatArray:
-    """Full-resolution points (N, 3) in the image box of ``curve`` grown by ``band_m`` at its range."""
-    return _near_box(full, intr, curve, band_m)[0]
+def near_points(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatArray, band_m: float, *,
+                read: NDArray[np.bool_] | None = None) -> FloatArray:  # fmt: skip
+    """Full-resolution points (N, 3) in the image band around ``curve``: the pixels within ``band_m`` of its
+    projection, at its nearest range (plus two pixels). ``read``, when given, (H, W): the pixels read are
+    marked in it (the fine stage's crop is what all its steps read)."""
+    return _near_box(full, intr, curve, band_m, read=read)[0]
 
 
-def _near_box(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatArray,
-              band_m: float) -> tuple[FloatArray, NDArray[np.int64]]:  # fmt: skip
+def _near_box(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatArray, band_m: float, *,
+              read: NDArray[np.bool_] | None = None) -> tuple[FloatArray, NDArray[np.int64]]:  # fmt: skip
     """:func:`near_points`, and each point's pixel (row, column) in ``full``."""
+    import cv2
+
     box = _pixel_box(intr, curve, band_m, full.shape[:2])
     if box is None:
         return np.zeros((0, 3)), np.zeros((0, 2), dtype=np.int64)
     v0, v1, u0, u1 = box
-    q = full[v0:v1, u0:u1].reshape(-1, 3)
-    vv, uu = np.mgrid[v0:v1, u0:u1]
+    # the band: the curve's projection drawn as wide as band_m at the curve's nearest point (a superset of
+    # the points within band_m of it in space; the box alone holds far more beside a diagonal seam)
+    half_px = int(np.ceil(band_m * intr.fx / max(float(np.min(curve[:, 2])), 1e-3))) + 2
+    uv = intr.project(curve) - np.array([u0, v0])
+    mask = np.zeros((v1 - v0, u1 - u0), np.uint8)
+    cv2.polylines(mask, [np.round(uv).astype(np.int32).reshape(-1, 1, 2)], False, 1, thickness=2 * half_px + 1)
+    vv, uu = np.nonzero(mask)
+    q = full[vv + v0, uu + u0]
     ok = np.isfinite(q[:, 2])
-    px = np.stack([vv.ravel()[ok], uu.ravel()[ok]], axis=1)
+    px = np.stack([vv[ok] + v0, uu[ok] + u0], axis=1)
+    if read is not None:
+        read[px[:, 0], px[:, 1]] = True
     return np.asarray(q[ok], dtype=np.float64), px
 
 
@@ -115,27 +128,32 @@ def refine_seams(
     noise_full: NoiseModel,
     *,
     params: RefineParams | None = None,
+    read: NDArray[np.bool_] | None = None,
 ) -> tuple[list[SeamCurve], int]:
-    """Refined seams, and how many full-resolution points the refinement read (the fine stage's crop)."""
+    """Refined seams, and how many full-resolution points the refinement read in the seams' bands, each
+    counted once (the fine stage's crop). ``read``, when given, (H, W): those pixels are marked in it."""
     rp = params or RefineParams()
     out: list[SeamCurve] = []
-    used = 0
+    if read is None:
+        read = np.zeros(full.shape[:2], dtype=bool)
     for s in seams:
-        q, px = _near_box(full, intr, s.points, rp.band_m)
-        used += len(q)
+        q, px = _near_box(full, intr, s.points, rp.band_m, read=read)
         A, B = surfaces.surfaces[s.surfaces[0]], surfaces.surfaces[s.surfaces[1]]
         if s.joint == "butt" or (A.kind == B.kind == "plane" and abs(float(A.normal @ B.normal)) > np.cos(0.17)):
             out.append(s)  # gaps and steps are placed at full resolution by their own steps
         elif s.kind == "linear" and A.kind == "plane" and B.kind == "plane":
             others = _others_residual(q, px, surfaces, s.surfaces, noise_full)
             beyond = _face_points(full, intr, surfaces, s.points, rp.face_reach_m)
-            out.append(_refine_line(s, q, others, A, B, noise_full, rp, beyond=beyond,
-                                    weight_beyond=float(surfaces.factor**2)))
+            r = _refine_line(s, q, others, A, B, noise_full, rp, beyond=beyond, weight_beyond=float(surfaces.factor**2))
+            if r is not s:
+                segmented = _labelled_points(full, intr, surfaces, s.points, rp.end_slack_m + rp.band_m)
+                r = _within_segmentation(r, segmented, noise_full, surfaces.factor, rp)
+            out.append(r)
         elif s.kind == "curved":
             out.append(_refine_ring(s, q, A, B, noise_full, rp))
         else:
             out.append(s)
-    return out, used
+    return out, int(read.sum())
 
 
 def _face_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet, curve: FloatArray,
@@ -160,6 +178,54 @@ def _face_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: Su
     along = (q - curve[0]) @ (chord / max(length, 1e-9))
     ok = np.isfinite(q[:, 2]) & (along >= 0.0) & (along <= length)  # beside the seam, not past its ends
     return q[ok], inner[rr[ok], cc[ok]]
+
+
+def _labelled_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet, curve: FloatArray,
+                     margin_m: float) -> tuple[FloatArray, NDArray[np.int32]]:  # fmt: skip
+    """The full-resolution points at the work-resolution pixels of every segmented surface in ``curve``'s
+    image box grown by ``margin_m``, and their labels."""
+    f = surfaces.factor
+    box = _pixel_box(intr, curve, margin_m, surfaces.labels.shape, factor=f)
+    if box is None:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
+    r0, r1, c0, c1 = box
+    lab = surfaces.labels[r0:r1, c0:c1]
+    rr, cc = np.nonzero(lab >= 0)
+    q = np.asarray(full[(rr + r0) * f, (cc + c0) * f], dtype=np.float64)
+    ok = np.isfinite(q[:, 2])
+    return q[ok], lab[rr[ok], cc[ok]]
+
+
+def _within_segmentation(s: SeamCurve, segmented: tuple[FloatArray, NDArray[np.int32]], noise: NoiseModel,
+                         factor: int, rp: RefineParams) -> SeamCurve:  # fmt: skip
+    """Straight seam ``s`` with its ends kept within half a sample spacing (where a face's edge lies on average
+    past its last sample) of where each face's segmented pixels (its surface and its fragments, at the work
+    resolution) reach along it. Full-resolution support runs on past a face's end where its edge is blurred:
+    at a grazing angle the mixed pixels beside a face's silhouette lie within the noise of its plane; the
+    segmentation, which takes only pixels whose neighbourhood is smooth and grows within the noise, stops
+    at the face's edge."""
+    q, lab = segmented
+    if len(q) == 0:
+        return s
+    line0, u = s.points[0], s.points[-1] - s.points[0]
+    length = float(np.linalg.norm(u))
+    u = u / length
+    z = float(np.median(s.points[:, 2]))
+    sig, spacing = float(noise.sigma_m(z)), float(noise.spacing_m(z)) * factor
+    reach = rp.end_near_m + 4.0 * sig + 3.0 * spacing
+    sig_q = noise.sigma_m(q[:, 2])
+    groups = [(int(k), np.flatnonzero(lab == k)) for k in np.unique(lab)]
+    lo, hi = 0.0, length
+    for normal, label in ((s.normals_a[0], s.surfaces[0]), (s.normals_b[0], s.surfaces[1])):
+        mine = _fragments(groups, np.abs((q - line0) @ normal), sig_q, label)  # the face's plane through the seam
+        t, d = line_coords(q[mine], line0, u)
+        t = t[d <= reach]
+        if len(t) < 2:
+            return s
+        lo, hi = max(lo, float(t.min()) - 0.5 * spacing), min(hi, float(t.max()) + 0.5 * spacing)
+    if hi - lo < 0.005 or (lo, hi) == (0.0, length):
+        return s
+    return replace(s, points=np.array([line0 + lo * u, line0 + hi * u]))
 
 
 def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B: Surface, noise: NoiseModel,

@@ -44,7 +44,10 @@ def step_seams(
     *,
     support: frozenset[int],
     params: StepParams | None = None,
+    read: NDArray[np.bool_] | None = None,
 ) -> list[SeamCurve]:
+    """Laps and steps between nearly parallel plates at a plate's thickness apart (neither in ``support``).
+    ``read``, when given, (H, W): the full-resolution pixels read are marked in it."""
     sp = params or StepParams()
     p = np.asarray(points, dtype=np.float64)
     lab = surfaces.labels
@@ -85,7 +88,7 @@ def step_seams(
             continue
         tu = (pu - c) @ u
         edge = _edge_offset(full, intr, noise_full, up, low, c, u, across, h, sp,
-                            span=(float(tu.min()) - 0.01, float(tu.max()) + 0.01))  # fmt: skip
+                            span=(float(tu.min()) - 0.01, float(tu.max()) + 0.01), read=read)  # fmt: skip
         if edge is None:
             continue
         off, slope, t_lo, t_hi, n_pts = edge
@@ -101,14 +104,15 @@ def step_seams(
 
 def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: NoiseModel, up: Surface, low: Surface,
                  c: FloatArray, u: FloatArray, across: FloatArray, h: float, sp: StepParams, *,
-                 span: tuple[float, float]) -> tuple[float, float, float, float, int] | None:  # fmt: skip
+                 span: tuple[float, float],
+                 read: NDArray[np.bool_] | None = None) -> tuple[float, float, float, float, int] | None:  # fmt: skip
     """Where the upper plate's edge face stands (offset along ``across`` from ``c``) and the stretch along
     ``u`` over which both plates are there, from full-resolution points near the edge."""
     from perception.fine.refine import near_points
 
     # a box around the contact, grown along the edge: the work image's contact decides the search band
     seg = np.array([c + span[0] * u, c + span[1] * u])
-    q = near_points(full, intr, seg, sp.band_m)
+    q = near_points(full, intr, seg, sp.band_m, read=read)
     if len(q) < 30:
         return None
     d = q - c

@@ -13,7 +13,7 @@ from perception.fine.noise import estimate_noise, local_planes
 from perception.fine.refine import RefineParams, _robust_plane_fit, _supported_ends, refine_seams
 from perception.fine.support import find_support
 from perception.fine.surfaces import _fit_plane, segment_surfaces
-from perception.fine.types import NoiseModel, Surface
+from perception.fine.types import NoiseModel, SeamCurve, Surface
 from perception.fine.visibility import clip_to_view
 from sim_fakes.render import StereoSensor, render
 
@@ -165,3 +165,24 @@ def test_the_ends_do_not_depend_on_where_the_line_coordinates_start() -> None:
             assert ends is not None
             found.add(tuple(np.round(np.sort((ends - np.array([0.0, 0.0, z0])) @ u), 9)))
         assert len(found) == 1, (seed, found)
+
+
+def test_a_seam_ends_where_its_faces_segmented_pixels_end_not_where_blurred_support_does() -> None:
+    # a seam along x at z = 0.5 m between face 0 (normal -z) and face 1 (normal -y), refined out to x = 43 mm;
+    # face 1's segmented pixels (work resolution, 2 mm apart) stop at x = 40 mm, face 0's run on to 60 mm,
+    # face 1 is segmented in two pieces: label 1 to x = 20 mm, a fragment on its plane (label 2) beyond
+    from perception.fine.refine import _within_segmentation
+
+    nm = NoiseModel(sigma_1m_m=0.0004, floor_m=1e-5, pixel_angle_rad=0.001)  # spacing 0.5 mm; x2 at work res
+    na, nb = np.tile([0.0, 0.0, -1.0], (2, 1)), np.tile([0.0, -1.0, 0.0], (2, 1))
+    seam = SeamCurve("linear", "fillet", np.array([[0.0, 0.0, 0.5], [0.043, 0.0, 0.5]]), na, nb, (0, 1), 100, 1e-4)
+    x0 = np.arange(-0.010, 0.0601, 0.002)
+    face0 = np.column_stack([x0, np.full_like(x0, 0.002), np.full_like(x0, 0.5)])  # 2 mm out on face 0
+    x1 = np.arange(-0.010, 0.0401, 0.002)
+    face1 = np.column_stack([x1, np.zeros_like(x1), np.full_like(x1, 0.498)])  # 2 mm up face 1
+    lab = np.concatenate([np.zeros(len(x0), np.int32), np.where(x1 < 0.020, 1, 2).astype(np.int32)])
+    out = _within_segmentation(seam, (np.vstack([face0, face1]), lab), nm, 2, RefineParams())
+    spacing = 2 * 0.5 * 0.001  # the work resolution's at 0.5 m
+    np.testing.assert_allclose(out.points, [[0.0, 0.0, 0.5], [0.040 + 0.5 * spacing, 0.0, 0.5]], atol=1e-12)
+    # a face with no segmented pixels near the seam leaves it as it was (nothing to say where it ends)
+    assert _within_segmentation(seam, (face0, np.zeros(len(x0), np.int32)), nm, 2, RefineParams()) is seam
