@@ -370,7 +370,7 @@ class DetectionConfig(Section):
     crop: bool = True
     roi_band_m: float = Field(default=0.010, gt=0)
     z_range_m: list[float] = Field(default_factory=lambda: [0.1, 3.0], min_length=2, max_length=2)
-    method: Literal["surfaces", "refined", "paper"] = "refined"
+    method: Literal["surfaces", "refined", "paper"] = "surfaces"
     merge_tol_m: float = Field(default=0.003, gt=0)
     merge_min_overlap_m: float = Field(default=0.02, gt=0)
 

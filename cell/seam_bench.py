@@ -129,7 +129,7 @@ def run_bench(
     seeds: Sequence[int] = (1,),
     sweep_scenes: Sequence[str] = ("ribs", "pipe_on_plate"),
     sweep_voxels_mm: Sequence[float] = SWEEP_VOXELS_MM,
-    methods: Sequence[str] = ("refined", "paper"),
+    methods: Sequence[str] = ("surfaces", "refined", "paper"),
     progress: Callable[[str], None] | None = None,
 ) -> BenchReport:
     from sim_fakes.render import render
@@ -151,7 +151,7 @@ def run_bench(
         if sd == seeds[0] and "refined" in methods:  # the crop's effect is the voxel stage's (Table II)
             say(f"table II {s} {n} no crop")
             t2.append(next(r for r in t1 if (r.scene, r.noise, r.seed, r.method) == (s, n, sd, "refined")))
-            t2.append(run_once(s, n, cap, replace(base, crop=False), max(1, repeats // 2), sd))
+            t2.append(run_once(s, n, cap, replace(base, crop=False, method="refined"), max(1, repeats // 2), sd))
     voxel_methods = [m for m in methods if m in ("refined", "paper")]  # the sweep is over the voxel size
     for s in sweep_scenes if voxel_methods else ():
         sd = seeds[0]

@@ -37,7 +37,7 @@ class DetectParams:
     veil_jump_m: float = 0.003
     knn: int = 16
     normal_radius_voxels: float = 2.5
-    method: Literal["surfaces", "refined", "paper"] = "refined"
+    method: Literal["surfaces", "refined", "paper"] = "surfaces"
     regions: RegionParams = field(default_factory=RegionParams)
     seams: SeamParams = field(default_factory=SeamParams)
     torch: TorchParams = field(default_factory=TorchParams)

@@ -26,7 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--method",
         choices=("refined", "surfaces", "paper"),
-        default="refined",
+        default="surfaces",
         help="the fine stage (clouds go through a range image from their viewpoint for surfaces)",
     )
     p.set_defaults(func=run)

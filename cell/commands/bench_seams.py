@@ -22,7 +22,7 @@ def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", default="1,2,3", help="noise seeds, comma-separated (default 1,2,3)")
     p.add_argument("--sweep", default="ribs,pipe_on_plate", help="scenes for the voxel sweep ('' to skip)")
     p.add_argument("--quick", action="store_true", help="one repeat, sweep at 1, 3, 6, 10 mm only")
-    p.add_argument("--methods", default="refined,paper",
+    p.add_argument("--methods", default="surfaces,refined,paper",
                    help="detector methods, comma-separated: refined, paper, surfaces")  # fmt: skip
     p.add_argument("--out", default="bench-out", help="folder for bench.json and bench.png")
     p.add_argument("--json", action="store_true", help="print the results as JSON")

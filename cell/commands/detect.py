@@ -70,7 +70,7 @@ def _add_detect_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--method",
         choices=("refined", "paper", "surfaces"),
-        default="refined",
+        default="surfaces",
         help="'paper': no sub-voxel refinement; 'surfaces': the fine stage on fitted surfaces (docs/zoo.md)",
     )
     p.add_argument("--step-mm", type=float, default=5.0, help="path point spacing in mm")
@@ -84,6 +84,15 @@ def build_params(args: argparse.Namespace) -> Any:
     from perception.errors import BadCapture
     from perception.path import TorchParams
 
+    if args.method == "surfaces":
+        # the surfaces stage segments the depth by its geometry (prompts.json only picks the workpiece) and
+        # crops to the seams' bands itself: these flags belong to the voxel-region stage; never ignore them
+        flags = (("--segmenter fastsam", args.segmenter == "fastsam"), ("--voxel-mm", args.voxel_mm is not None),
+                 ("--no-crop", args.no_crop))  # fmt: skip
+        given = [f for f, on in flags if on]
+        if given:
+            raise BadCapture(f"{', '.join(given)}: for --method refined or paper (the voxel-region stage); the "
+                             "default surfaces stage has no image segmenter, voxel grid or separate crop")  # fmt: skip
     voxel_mm = 3.0 if args.voxel_mm is None else args.voxel_mm
     if not 0.2 <= voxel_mm <= 50:
         raise BadCapture(f"--voxel-mm must be between 0.2 and 50, got {voxel_mm}")

@@ -69,7 +69,7 @@ def test_the_table_lists_every_item_and_ends_with_the_count(
     calls: list[Any], capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     assert main(["bench", "real", "--realdata", str(tmp_path)]) == 0
-    assert calls == [(tmp_path, None, "refined")]
+    assert calls == [(tmp_path, None, "surfaces")]
     lines = capsys.readouterr().out.splitlines()
     assert lines[-1] == "1 of 2 referenced items pass; 3 items in all"
     rows = [[c.strip() for c in line.split("│")[1:-1]] for line in lines if line.startswith("│")]

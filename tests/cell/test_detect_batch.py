@@ -19,14 +19,18 @@ SAMPLE = REPO / "samples" / "ribs"
 
 @pytest.fixture(scope="module")
 def captures(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
-    """Three captures: the sample twice (under two names) and one without any seam (a single plate)."""
+    """Three captures: the sample twice (under two names) and one without any seam (a lone plate on the table)."""
+    from perception.capture import save_capture
+    from sim_fakes.render import render
+    from sim_fakes.scenes import Scene, t_joint
+
     root = tmp_path_factory.mktemp("captures")
     a, b = root / "a" / "ribs", root / "b" / "ribs"  # the same folder name twice: outputs must not collide
     shutil.copytree(SAMPLE, a)
     shutil.copytree(SAMPLE, b)
-    plate = root / "plate"
-    shutil.copytree(SAMPLE, plate)
-    (plate / "prompts.json").write_text(json.dumps({"points": [[320, 180]]}))  # one surface: no seam possible
+    tee = t_joint()
+    plate = save_capture(render(Scene("plate", "", tee.parts[:2], (), tee.camera), noise="structured").capture,
+                         root / "plate")  # fmt: skip
     return [a, b, plate]
 
 
@@ -55,7 +59,7 @@ def test_a_batch_writes_what_single_runs_write_and_reports_each_failure(captures
     first, second, plate = summary["results"]
     assert [first["source"], second["source"], plate["source"]] == [str(c) for c in captures]
     assert first["out"] == str(out / "ribs.seams.json") and second["out"] == str(out / "ribs-2.seams.json")
-    assert not plate["ok"] and plate["exit"] == 3 and "a seam needs two" in plate["error"]
+    assert not plate["ok"] and plate["exit"] == 3 and "none meets another" in plate["error"]
     want = json.loads(single.read_text())
     for name in ("ribs.seams.json", "ribs-2.seams.json"):
         got = json.loads((out / name).read_text())

@@ -68,15 +68,18 @@ def test_torch_points_into_the_joint_on_the_bisector() -> None:
         assert np.allclose(X[:3, :3].T @ X[:3, :3], np.eye(3), atol=1e-9)
 
 
+@pytest.mark.parametrize(("method", "max_m"), [("surfaces", 0.001), ("refined", 0.0008)])
 @pytest.mark.parametrize(("noise", "seed"), [("structured", 1), ("stereo", 2)])
-def test_ribs_finds_ten_seams_no_false_ones(noise: str, seed: int) -> None:
-    # stereo seed 2: bar0's -x face, seen at 75 deg incidence, is merged into the plate's mask; geometry
-    # still separates it. Structured seed 1: two bars' faces 5 mm out of line share one mask
-    out, rep = score(rendered("ribs", noise, seed))
+def test_ribs_finds_ten_seams_no_false_ones(noise: str, seed: int, method: str, max_m: float) -> None:
+    # refined: stereo seed 2: bar0's -x face, seen at 75 deg incidence, is merged into the plate's mask;
+    # geometry still separates it. Structured seed 1: two bars' faces 5 mm out of line share one mask.
+    # surfaces: the bars' end faces are seen at 75-78 degrees; their seams' far ends are placed from a face
+    # sampled five times sparser than square on (the largest errors, 0.86 mm on stereo seed 2)
+    out, rep = score(rendered("ribs", noise, seed), DetectParams(method=method))  # type: ignore[arg-type]
     assert rep.n_truth == 10
     assert rep.n_found == 10, rep.to_json()
     assert not rep.false_seams
-    assert rep.rmse_m < 0.0002 and rep.max_m < 0.0008, rep.to_json()
+    assert rep.rmse_m < 0.0002 and rep.max_m < max_m, rep.to_json()
     removed = 1 - out.point_counts["cropped"] / out.point_counts["raw"]
     assert removed > 0.8
 
@@ -124,7 +127,7 @@ def test_automatic_prompts_find_the_seam() -> None:
     from dataclasses import replace
 
     auto = replace(cap, prompts_px=None)
-    out = detect(auto)
+    out = detect(auto, DetectParams(method="refined"))  # the image segmenter's prompts (surfaces need none)
     assert out.info["prompts_source"] == "auto"
     rep = evaluate_seams([s.points for s in out.seams], cap.ground_truth)
     assert rep.n_found == 1 and not rep.false_seams
@@ -200,13 +203,24 @@ def test_cli_exit_codes(tmp_path: Path, capsys) -> None:
 
 
 def test_a_voxel_size_outside_the_validated_range_is_warned_about(capsys) -> None:
-    assert main(["detect", str(SAMPLE), "--voxel-mm", "3.5"]) == 0
+    refined = ["detect", str(SAMPLE), "--method", "refined"]
+    assert main([*refined, "--voxel-mm", "3.5"]) == 0
     assert "warning" not in capsys.readouterr().err
-    main(["detect", str(SAMPLE), "--voxel-mm", "8"])
+    main([*refined, "--voxel-mm", "8"])
     err = capsys.readouterr().err
     assert "warning: --voxel-mm 8 is outside the range the detector is validated for (3-5 mm)" in err
-    assert main(["detect", str(SAMPLE), "--voxel-mm", "0"]) == 2
+    assert main([*refined, "--voxel-mm", "0"]) == 2
     assert "--voxel-mm must be between" in capsys.readouterr().err
+
+
+def test_the_voxel_stages_flags_are_refused_by_the_surfaces_stage_not_ignored(capsys, tmp_path) -> None:
+    out = tmp_path / "seams.json"
+    assert main(["detect", str(SAMPLE), "--voxel-mm", "4", "--no-crop", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--voxel-mm, --no-crop: for --method refined or paper" in err and err.count("\n") == 1
+    assert main(["detect", str(SAMPLE), "--segmenter", "fastsam", "--model", "m.onnx", "--out", str(out)]) == 2
+    assert "--segmenter fastsam: for --method refined or paper" in capsys.readouterr().err
+    assert not out.exists()
 
 
 def test_bundled_sample_round_trip_is_stable() -> None:

@@ -27,7 +27,7 @@ def test_a_step_s_time_adds_up_over_repeats_and_is_kept_when_it_raises() -> None
 
 def test_the_defaults_are_the_tuned_ones_in_si_units_and_the_detector_offers_the_same_types() -> None:
     p = DetectParams()
-    assert (p.method, p.voxel_m, p.knn, p.normal_radius_voxels, p.roi_band_m) == ("refined", 0.003, 16, 2.5, 0.010)
+    assert (p.method, p.voxel_m, p.knn, p.normal_radius_voxels, p.roi_band_m) == ("surfaces", 0.003, 16, 2.5, 0.010)
     assert p.z_range_m == (0.1, 3.0) and p.workspace_min_m is None and p.crop
     assert p.seams.max_coplanar_rad == pytest.approx(math.radians(8.0))
     assert p.regions.max_angle_rad == pytest.approx(math.radians(12.0))

@@ -76,9 +76,14 @@ def test_the_cad_sampled_tee_gives_its_visible_fillet_on_the_cad_line() -> None:
         pytest.skip("8in10in_tee_01_blndrB.pcd missing")
     cloud = read_point_cloud(path)
     assert cloud.normals is not None  # its normals say which side the sensor saw
-    res = detect_cloud(cloud)
+    res = detect_cloud(cloud, DetectParams(method="refined"))
     assert res.info["voxel_m"] > 0.004  # 3 mm sample spacing: a coarser voxel was chosen
     assert len(res.seams) == 1
     p = res.seams[0].points
     assert np.abs(p[:, 0] - 0.0254).max() < 0.0005 and np.abs(p[:, 2] - 0.0254).max() < 0.0005
     assert np.abs(p[:, 1]).max() <= 0.0254 and res.seams[0].length_m > 0.035
+    # the surfaces stage (the default) on the cloud's range image: the same line, exact, but only 22 of its
+    # 50.8 mm (3 mm samples: issue 12)
+    (seam,) = detect_cloud(cloud).seams
+    assert np.abs(seam.points[:, 0] - 0.0254).max() < 0.0005 and np.abs(seam.points[:, 2] - 0.0254).max() < 0.0005
+    assert np.abs(seam.points[:, 1]).max() <= 0.0254 and seam.length_m > 0.02
