@@ -602,8 +602,21 @@ def _merge_coaxial(p: FloatArray, lab: NDArray[np.int32], surfaces: list[Surface
 
 
 def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], noise: NoiseModel,
-                    sp: SurfaceParams) -> tuple[NDArray[np.int32], list[Surface]]:  # fmt: skip
-    """Planes whose pixels touch and that are one plane within the noise become one surface."""
+                    sp: SurfaceParams, *, rounds: int = 4) -> tuple[NDArray[np.int32], list[Surface]]:  # fmt: skip
+    """Planes whose pixels touch and that are one plane within the noise become one surface; again with the
+    merged planes (a strip that touches only strips merged into a plate is then tested against the plate)
+    until nothing more merges, at most ``rounds`` times."""
+    for _ in range(rounds):
+        n = len(surfaces)
+        labels, surfaces = _merge_coplanar_once(p, labels, surfaces, noise, sp)
+        if len(surfaces) == n:
+            break
+    return labels, surfaces
+
+
+def _merge_coplanar_once(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], noise: NoiseModel,
+                         sp: SurfaceParams) -> tuple[NDArray[np.int32], list[Surface]]:  # fmt: skip
+    """One round of :func:`_merge_coplanar`."""
     if len(surfaces) < 2:
         return labels, surfaces
     sets = Groups(range(len(surfaces)))
@@ -622,21 +635,43 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
     flat = labels.reshape(-1)
     pts_flat = p.reshape(-1, 3)
 
+    order = _stable_order(np.where(flat >= 0, flat, n_lab), n_lab + 1)  # each label's pixels, found once
+    starts = np.searchsorted(np.where(flat >= 0, flat, n_lab)[order], np.arange(n_lab + 1))
+
     def sample(lab: int) -> FloatArray:
-        idx = np.flatnonzero(flat == lab)  # only the few pieces a pair needs, not a sort of the whole image
+        idx = order[starts[lab] : starts[lab + 1]]
         return np.nan_to_num(pts_flat[idx[:: max(1, len(idx) // 2000)]])
 
+    on_plane_of: dict[int, list[int]] = {}
     for u, v in sorted(touching):
         su, sv = surfaces[u], surfaces[v]
-        if su.kind != "plane" or sv.kind != "plane" or float(su.normal @ sv.normal) < cos_m:
+        if su.kind != "plane" or sv.kind != "plane":
             continue
-        tol = 3.0 * float(noise.sigma_m(max(su.z_m, sv.z_m)))
+        sig = float(noise.sigma_m(max(su.z_m, sv.z_m)))
         # the larger piece's plane must hold the smaller's points: a narrow strip's own plane is tilted by
         # its noise and, carried over the larger piece, leaves it (a strip of a plate along an edge)
         big, small = (su, v) if su.n_points >= sv.n_points else (sv, u)
-        if np.median(np.abs(big.residual(sample(small)))) > tol:
+        res = np.abs(big.residual(sample(small)))
+        if float(su.normal @ sv.normal) >= cos_m:
+            if np.median(res) <= 3.0 * sig:
+                sets.join(u, v)
             continue
-        sets.join(u, v)
+        # a smaller piece whose points fit its own plane far better than the noise lets a surface fit (one
+        # or two scan lines: a LiDAR's rows, each smooth, the noise being the rows' offsets) fits a plane at
+        # any tilt about them; when its points lie on the larger's plane as closely as the larger's own do,
+        # that is its plane
+        spread = max(sig, big.rms_m)
+        if surfaces[small].rms_m <= 0.5 * sig and np.median(res) <= spread and np.percentile(res, 90) <= 2.5 * spread:
+            on_plane_of.setdefault(small, []).append(big.label)
+    # ... absorbed into that plane only when it is the one plane it lies on, it is joined to nothing else
+    # (a piece in a fold's band lies on both faces' planes, and must not join them), and that plane is not
+    # being absorbed itself (its plane may be a strip's: the next round tests against the merged plane)
+    group_size: dict[int, int] = {}
+    for i in range(len(surfaces)):
+        group_size[find(i)] = group_size.get(find(i), 0) + 1
+    for small, bigs in on_plane_of.items():
+        if len(bigs) == 1 and group_size[find(small)] == 1 and bigs[0] not in on_plane_of:
+            sets.join(small, bigs[0])
     roots = sorted({find(i) for i in range(len(surfaces))})
     if len(roots) == len(surfaces):
         return labels, surfaces

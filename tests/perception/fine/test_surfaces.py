@@ -235,3 +235,61 @@ def test_a_plane_fitted_in_rows_is_the_one_fitted_in_points_bit_for_bit() -> Non
     got = fit_plane_rows(p, rows, w)
     assert np.array_equal(got[0], n) and got[1] == -float(n @ cw) and got[2] == float(np.sqrt(ev[0] / w.sum()))
     assert all(np.array_equal(a, b) for a, b in zip(_fit_plane(p, w), got, strict=True))
+
+
+def _plate_with_strip(tilt_deg: float, rows: int = 2):
+    """A plate at 0.6 m (0.4 mm noise): a broad piece (label 0) and a strip ``rows`` pixels wide along its edge
+    (label 1) whose own plane is turned by ``tilt_deg`` about the strip's line (one scan line fits any plane
+    through it). Returns points, labels, surfaces, noise."""
+    from perception.fine.surfaces import _fit_plane
+    from perception.fine.types import NoiseModel, Surface
+
+    h, w, f = 120, 200, 460.0
+    ys, xs = np.mgrid[0:h, 0:w].astype(float)
+    z = 0.6 + np.random.default_rng(2).normal(0.0, 0.0004, (h, w))
+    pts = np.dstack([(xs - w / 2) * z / f, (ys - h / 2) * z / f, z])
+    labels = np.where(ys < h - rows, 0, 1).astype(np.int32)
+    n0, d0, r0 = _fit_plane(pts[labels == 0])
+    strip = pts[labels == 1]
+    tilt = np.radians(tilt_deg)
+    n1 = np.array([0.0, np.sin(tilt), -np.cos(tilt)])
+    surfaces = [Surface(0, "plane", n0, d0, r0, int((labels == 0).sum()), pts[labels == 0].mean(axis=0), 0.6),
+                Surface(1, "plane", n1, -float(n1 @ strip.mean(axis=0)), 0.00002, len(strip), strip.mean(axis=0),
+                        0.6)]  # fmt: skip
+    return pts, labels, surfaces, NoiseModel(sigma_1m_m=0.0004 / 0.36, floor_m=1e-5, pixel_angle_rad=1 / f)
+
+
+def test_a_scan_line_strip_whose_own_plane_is_far_off_joins_the_plane_its_points_lie_on() -> None:
+    from perception.fine.surfaces import SurfaceParams, _merge_coplanar
+
+    pts, labels, surfaces, noise = _plate_with_strip(40.0)  # a LiDAR row on a table, fitted 40 degrees off
+    new_labels, merged = _merge_coplanar(pts, labels, surfaces, noise, SurfaceParams())
+    assert len(merged) == 1 and (new_labels == 0).all()
+    assert abs(abs(merged[0].normal[2]) - 1.0) < 1e-5 and abs(abs(merged[0].offset) - 0.6) < 1e-4
+
+
+def test_a_piece_on_two_planes_joins_neither_and_a_face_off_the_plane_stays_apart() -> None:
+    from dataclasses import replace
+
+    from perception.fine.surfaces import SurfaceParams, _merge_coplanar
+    from perception.fine.types import Surface
+
+    pts, labels, surfaces, noise = _plate_with_strip(40.0, rows=1)
+    # a third piece (label 2) standing at 50 degrees beside the strip, whose plane the strip's points also
+    # lie on (one row along its line with the plate: the band of a fold): the strip joins neither plane
+    n2 = np.array([0.0, np.sin(np.radians(50.0)), -np.cos(np.radians(50.0))])
+    line = pts[labels == 1].mean(axis=0)
+    labels = labels.copy()
+    labels[:, :3] = 2  # touching the strip at its end, its points on its own plane
+    d2 = -float(n2 @ line)
+    on2 = pts.copy()
+    on2[labels == 2] -= np.outer(on2[labels == 2] @ n2 + d2, n2)
+    p2 = Surface(2, "plane", n2, d2, 0.0004, 10**5, line, 0.6)  # larger than the strip
+    tall = replace(surfaces[0], n_points=10**6)  # the plate's plane, the largest
+    _, merged = _merge_coplanar(on2, labels, [tall, surfaces[1], p2], noise, SurfaceParams())
+    assert len(merged) == 3
+    # a face whose points leave the plate's plane (a plate 3 mm above it: 7.5 sigma) stays its own surface
+    up = pts.copy()
+    up[labels == 1] += np.array([0.0, 0.0, -0.003])
+    _, merged = _merge_coplanar(up, np.where(labels == 2, 0, labels), surfaces, noise, SurfaceParams())
+    assert len(merged) == 2
