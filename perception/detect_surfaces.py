@@ -160,7 +160,7 @@ def _full_resolution_steps(
     """Refinement on the full-resolution points near each seam, the narrow gaps and steps only full
     resolution shows, and the view clip; with how many full-resolution points were read."""
     from perception.fine.corners import join_corners
-    from perception.fine.gaps import inner_gap_seams
+    from perception.fine.gaps import inner_gap_seams, over_groove
     from perception.fine.merge import merge_collinear
     from perception.fine.refine import refine_seams
     from perception.fine.steps import step_seams
@@ -183,6 +183,9 @@ def _full_resolution_steps(
         curves = [c for c in curves if not _duplicates(c, steps)] + steps
     with log.step("merge"):
         curves = merge_collinear(curves, organized, capture.intrinsics, noise_full)
+        # a V-groove's opening between its plates' tops is not a butt gap beside it: the root is the seam
+        grooves = [c for c in curves if c.joint == "v_groove"]
+        curves = [c for c in curves if c.joint != "butt" or not over_groove(c, grooves)]
     with log.step("view"):
         curves = clip_to_view(curves, surf, noise)
     with log.step("corners"):

@@ -105,6 +105,31 @@ def gap_seams(
     return out
 
 
+def over_groove(butt: SeamCurve, grooves: list[SeamCurve], *, margin_m: float = 0.003) -> bool:
+    """Whether ``butt`` is a V-groove's opening: seen along its plates' normal, its centre line lies on one of
+    ``grooves``' (within half its width plus ``margin_m`` across, and along it, over most of its length).
+    Between the two plates' tops a groove's bevels leave a strip like a gap's, but the seam is the root."""
+    n = butt.normals_a[0] / np.linalg.norm(butt.normals_a[0])
+
+    def flat(q: FloatArray) -> FloatArray:
+        return q - np.outer(q @ n, n)
+
+    probe = flat(butt.points[0] + np.linspace(0.0, 1.0, 11)[:, None] * (butt.points[-1] - butt.points[0]))
+    for g in grooves:
+        g0, g1 = flat(g.points[[0, -1]])
+        length = float(np.linalg.norm(g1 - g0))
+        if length < 1e-6:
+            continue
+        u = (g1 - g0) / length
+        d = probe - g0
+        t = d @ u
+        lateral = np.linalg.norm(d - np.outer(t, u), axis=1)
+        on = (lateral <= 0.5 * butt.gap_m + margin_m) & (t >= -margin_m) & (t <= length + margin_m)
+        if on.mean() >= 0.8:
+            return True
+    return False
+
+
 def _shared_span(ta: FloatArray, tb: FloatArray, t0: float, t1: float) -> tuple[float, float]:
     """[t0, t1] narrowed to where both sides' positions ``ta`` and ``tb`` (along a gap) within it reach;
     unchanged when either side has none there."""

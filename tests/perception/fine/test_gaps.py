@@ -95,3 +95,23 @@ def test_dots_are_einsums_values_bit_for_bit() -> None:
         pts = rng.normal(size=(n, 3)) * 0.1 + [0.05, 0.02, 0.6]
         a = np.cross([0.0, 0.0, 1.0], rng.normal(size=(t, 3)))
         assert np.array_equal(_dots(a, np.ascontiguousarray(pts.T)), np.einsum("tk,nk->tn", a, pts))
+
+
+def test_a_butt_over_a_v_grooves_root_is_its_opening_and_one_beside_it_is_not() -> None:
+    from perception.fine.gaps import over_groove
+    from perception.fine.types import SeamCurve
+
+    up = np.tile([0.0, 0.0, -1.0], (2, 1))  # the plates' normal, towards the camera
+    root = SeamCurve("linear", "v_groove", np.array([[-0.1, 0.0, 0.508], [0.1, 0.0, 0.508]]),
+                     np.tile([0.7, 0.0, -0.7], (2, 1)), np.tile([-0.7, 0.0, -0.7], (2, 1)), (1, 2), 100, 1e-4)  # fmt: skip
+
+    def butt(y0: float, y1: float, x0: float = -0.08, x1: float = 0.08) -> SeamCurve:
+        pts = np.array([[x0, y0, 0.5], [x1, y1, 0.5]])  # on the tops, 8 mm above the root
+        return SeamCurve("linear", "butt", pts, up, up, (3, 4), 100, 1e-4, gap_m=0.004)
+
+    assert over_groove(butt(0.001, 0.001), [root])  # across: 1 mm from the root's line, seen along the normal
+    assert over_groove(butt(0.0049, 0.0049), [root])  # 4.9 mm: within half the 4 mm gap plus 3 mm
+    assert not over_groove(butt(0.0051, 0.0051), [root])
+    assert not over_groove(butt(0.0, 0.0, 0.12, 0.3), [root])  # past the groove's end
+    assert not over_groove(butt(-0.08, 0.08, 0.0, 0.0), [root])  # across the groove
+    assert not over_groove(butt(0.001, 0.001), [])
