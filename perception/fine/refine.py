@@ -363,19 +363,30 @@ def _robust_plane_fit(p: FloatArray, weights: FloatArray, *, iterations: int = 8
     """The plane of ``p`` (each point weighted by ``weights``) fitted with Tukey's biweight: a point's weight
     falls smoothly to zero at TUKEY_C robust sigmas (the residuals' MAD), so that the few points of another
     surface that pass the gates (the last pixel row of a convex edge beside a face seen a few pixels wide)
-    do not tilt the plane, while the face's own noise keeps 95% of the least-squares efficiency."""
+    do not tilt the plane, while the face's own noise keeps 95% of the least-squares efficiency. Every
+    iteration works in the same few arrays (a fresh array of a large fit's size costs its page faults); each
+    value is the one of ``w = weights * np.where(np.abs(x) < 1, (1 - x * x) ** 2, 0)``."""
     rows = np.ascontiguousarray(p.T)  # the (3, N) layout every refit's moments are taken in
-    n, off, _ = fit_plane_rows(p, rows, weights)
+    work = (np.empty_like(rows), np.empty_like(rows))
+    n, off, _ = fit_plane_rows(p, rows, weights, work=work)
+    r, a, w = np.empty(len(p)), np.empty(len(p)), np.empty(len(p))
+    cut = np.empty(len(p), dtype=bool)
     for _ in range(iterations):
-        r = p @ n + off
-        scale = 1.4826 * float(np.median(np.abs(r), overwrite_input=True))
+        np.matmul(p, n, out=r)
+        r += off
+        scale = 1.4826 * float(np.median(np.abs(r, out=a), overwrite_input=True))
         if scale <= 0.0:
             break
-        x = r / (TUKEY_C * scale)
-        w = weights * np.where(np.abs(x) < 1.0, (1.0 - x * x) ** 2, 0.0)
+        r /= TUKEY_C * scale  # x, the residual in units of the biweight's cut-off
+        np.logical_not(np.less(np.abs(r, out=a), 1.0, out=cut), out=cut)
+        np.multiply(r, r, out=a)
+        np.subtract(1.0, a, out=a)
+        np.multiply(a, a, out=a)
+        np.multiply(weights, a, out=w)
+        w[cut] = 0.0
         if w.sum() <= 0.0 or np.count_nonzero(w) < 10:
             break
-        n, off, _ = fit_plane_rows(p, rows, w)
+        n, off, _ = fit_plane_rows(p, rows, w, work=work)
     return n, off
 
 

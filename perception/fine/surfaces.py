@@ -54,23 +54,25 @@ def _fit_plane(p: FloatArray, weights: FloatArray | None = None) -> tuple[FloatA
     return fit_plane_rows(p, np.ascontiguousarray(p.T), weights)
 
 
-def fit_plane_rows(p: FloatArray, rows: FloatArray,
-                   weights: FloatArray | None = None) -> tuple[FloatArray, float, float]:  # fmt: skip
+def fit_plane_rows(p: FloatArray, rows: FloatArray, weights: FloatArray | None = None, *,
+                   work: tuple[FloatArray, FloatArray] | None = None) -> tuple[FloatArray, float, float]:  # fmt: skip
     """:func:`_fit_plane` of (N, 3) points ``p`` also given as their (3, N) coordinate rows ``rows`` (a fit
     that refits the same points keeps both). The centroid is summed over ``p``
     (:func:`perception.fits.sum_rows`) and the points are centred and weighted in ``rows``, where that is one
     pass along each row (on (N, 3) rows it is a loop three values wide, ten times slower); every value is the
     one the (N, 3) arithmetic gives, the scatter matrix's product included (BLAS is handed the same matrices,
-    in the other layout)."""
+    in the other layout). ``work``: two (3, N) arrays the centred and the weighted rows are written to (a
+    fit repeated on the same points reuses them: a fresh array of that size costs its page faults)."""
     if weights is None:
         c = mean_rows(p)
-        q = rows - c[:, None]
+        q = np.subtract(rows, c[:, None], out=None if work is None else work[0])
         w, v = np.linalg.eigh(q @ q.T / max(len(p), 1))
     else:
         total = weights.sum()
         c = sum_rows(p, weights) / total
-        q = rows - c[:, None]
-        w, v = np.linalg.eigh((q * weights) @ q.T)
+        q = np.subtract(rows, c[:, None], out=None if work is None else work[0])
+        qw = np.multiply(q, weights, out=None if work is None else work[1])
+        w, v = np.linalg.eigh(qw @ q.T)
         w = w / total
     n = v[:, 0]
     if n @ c > 0:  # towards the camera
