@@ -23,6 +23,7 @@ from perception.fine.root import open_root
 from perception.fine.runs import covered_runs, trim_stray_tails
 from perception.fine.surfaces import _fit_plane, fit_plane_rows
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
+from perception.fits import median
 
 COPY_SIGMA = 1.5  # see _others_residual
 ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
@@ -107,7 +108,7 @@ def _others_residual(q: FloatArray, px: NDArray[np.int64], surfaces: SurfaceSet,
         if k < 0 or k in pair or k >= len(surfaces.surfaces):
             continue
         mine = lab == k
-        if min(float(np.median(ra[mine] / sig[mine])), float(np.median(rb[mine] / sig[mine]))) < COPY_SIGMA:
+        if min(float(median(ra[mine] / sig[mine])), float(median(rb[mine] / sig[mine]))) < COPY_SIGMA:
             continue
         best = np.minimum(best, np.abs(surfaces.surfaces[int(k)].residual(q)))
     return best
@@ -298,7 +299,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         return s
     gap = 0.0
     if s.joint == "v_groove":
-        reach = min(float(np.median(da[all_a])), float(np.median(db[all_b])))
+        reach = min(float(median(da[all_a])), float(median(db[all_b])))
         line0, gap = _root_line(q, sig, line0, u, (va, vb), (a, b), (p0, p1), reach)
     ends = _supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
                            noise, rp)  # fmt: skip
@@ -345,7 +346,7 @@ def _fragments(groups: list[tuple[int, NDArray[np.intp]]], res: FloatArray, sig:
     :func:`_others_residual`). ``groups``: each surface label among the points with their indices."""
     out = np.zeros(len(res), bool)
     for k, idx in groups:
-        if k == own or float(np.median(res[idx] / sig[idx], overwrite_input=True)) < COPY_SIGMA:
+        if k == own or float(median(res[idx] / sig[idx], overwrite_input=True)) < COPY_SIGMA:
             out[idx] = True
     return out
 
@@ -374,7 +375,7 @@ def _robust_plane_fit(p: FloatArray, weights: FloatArray, *, iterations: int = 8
     for _ in range(iterations):
         np.matmul(p, n, out=r)
         r += off
-        scale = 1.4826 * float(np.median(np.abs(r, out=a), overwrite_input=True))
+        scale = 1.4826 * float(median(np.abs(r, out=a), overwrite_input=True))
         if scale <= 0.0:
             break
         r /= TUKEY_C * scale  # x, the residual in units of the biweight's cut-off
@@ -395,7 +396,7 @@ def _short_of_far_edge(d: FloatArray, on: NDArray[np.bool_], margin: FloatArray,
     if on.sum() < 10:
         return on
     far = float(np.percentile(d[on], 99.0))
-    if far >= band_m - float(np.median(margin[on])):
+    if far >= band_m - float(median(margin[on])):
         return np.ones_like(on)
     return d < far - margin
 
@@ -406,8 +407,8 @@ def _face_sigma(res: FloatArray, sig: FloatArray, side: NDArray[np.bool_]) -> Fl
     if res.size < 10:
         return sig
     core = res[res <= np.percentile(res, 80)]
-    own = 1.4826 * float(np.median(core)) / 0.7  # the median of |r| over the inner 80% of a normal: 0.7 MAD
-    typical = float(np.median(sig[side]))
+    own = 1.4826 * float(median(core)) / 0.7  # the median of |r| over the inner 80% of a normal: 0.7 MAD
+    typical = float(median(sig[side]))
     return np.maximum(sig, np.clip(own, typical, 5.0 * typical))
 
 

@@ -26,7 +26,7 @@ from perception.fine.groups import Groups
 from perception.fine.noise import LocalPlanes
 from perception.fine.parallel import split_parallel
 from perception.fine.types import NoiseModel, Surface, SurfaceSet
-from perception.fits import mean_rows, sum_rows
+from perception.fits import mean_rows, median, sum_rows
 
 FloatArray = NDArray[np.float64]
 
@@ -248,7 +248,7 @@ def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: F
     of outliers, but a face)."""
     w = p.shape[1]
     q = p.reshape(-1, 3)[idx]
-    zc = float(np.median(q[:, 2]))
+    zc = float(median(q[:, 2]))
     tol = sp.inlier_sigma * sig_all[idx]  # per point: the noise grows with range
     th = max(1, len(q) // 20000)  # fits on at most ~20k points; inliers are taken on all
     nrm, d, rms = _fit_plane(q[::th])
@@ -259,7 +259,7 @@ def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: F
         nrm, d, rms = _fit_plane(q[::th][inl])
     # a face seen obliquely is noisier than the range alone says: its own residual scale, up to 3x
     res = np.abs(q @ nrm + d)
-    scale = np.clip(1.4826 * np.median(res) / np.maximum(np.median(sig_all[idx]), 1e-9), 1.0, 3.0)
+    scale = np.clip(1.4826 * median(res) / np.maximum(median(sig_all[idx]), 1e-9), 1.0, 3.0)
     inl = res <= tol * scale
     spacing_c = float(noise.spacing_m(zc))
     if not _two_dimensional(q[::th], spacing_c, sp):
@@ -636,7 +636,7 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
         # the larger piece's plane must hold the smaller's points: a narrow strip's own plane is tilted by
         # its noise and, carried over the larger piece, leaves it (a strip of a plate along an edge)
         big, small = (su, v) if su.n_points >= sv.n_points else (sv, u)
-        if np.median(np.abs(big.residual(sample(small)))) > tol:
+        if median(np.abs(big.residual(sample(small)))) > tol:
             continue
         sets.join(u, v)
     roots = sorted({find(i) for i in range(len(surfaces))})
