@@ -109,6 +109,8 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
     the points' flat pixel indices ``pixels`` are given."""
     left = np.arange(len(q))
     out: list[NDArray[np.int64]] = []
+    dist = np.empty((0, 0))
+    within = np.empty((0, 0), dtype=bool)
     while len(left) >= min_points and len(out) < max_planes:
         sample = left if len(left) <= 3000 else rng.choice(left, 3000, replace=False)
         tri = rng.integers(0, len(sample), (trials, 3))
@@ -118,24 +120,28 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
         good = norm > 1e-9
         nn = nn[good] / norm[good, None]
         dd = -(nn * a[good]).sum(axis=1)
-        # every trial's distances in one (sample, trials) matrix, worked on in place: a few MB per temporary,
-        # and each fresh one costs its page faults (it was 8x slower)
-        dist = q[sample] @ nn.T
+        # every trial's distances in one (sample, trials) matrix, worked on in place and kept for the next
+        # plane's trials: a few MB per temporary, and each fresh one costs its page faults (it was 8x slower)
+        if dist.shape != (len(sample), len(nn)):
+            dist, within = np.empty((len(sample), len(nn))), np.empty((len(sample), len(nn)), dtype=bool)
+        np.matmul(q[sample], nn.T, out=dist)
         dist += dd
         np.abs(dist, out=dist)
-        cnt = (dist <= tol[sample, None]).sum(axis=0)
+        cnt = np.less_equal(dist, tol[sample, None], out=within).sum(axis=0)
         if cnt.size == 0:
             break
         k = int(np.argmax(cnt))
         best_n, best_d, best_cnt = nn[k], dd[k], int(cnt[k])
         if best_cnt < 0.5 * min_points * len(sample) / len(left):
             break
-        inl = left[np.abs(q[left] @ best_n + best_d) <= tol[left]]
+        # the points left, gathered once for both takes (all of them, as they are, before the first plane)
+        q_left, tol_left = (q, tol) if len(left) == len(q) else (q[left], tol[left])
+        inl = left[np.abs(q_left @ best_n + best_d) <= tol_left]
         if len(inl) < min_points:
             break
         # refine on the inliers and take them again
         n2, d2, _ = _fit_plane(q[inl])
-        inl = left[np.abs(q[left] @ n2 + d2) <= tol[left]]
+        inl = left[np.abs(q_left @ n2 + d2) <= tol_left]
         if len(inl) < min_points:
             break
         piece = inl if pixels is None else inl[max(_connected_pieces(pixels[inl], width, 1), key=len)]
