@@ -12,6 +12,7 @@ from perception.capture import CameraIntrinsics
 from perception.fine.folds import contact_points
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
+from perception.fits import median
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ def gap_seams(
         pa, pb = contact_points(p, lab, pair)
         if len(pa) < 10 or len(pb) < 10:
             continue
-        if abs(float(np.median(A.residual(pb)))) > gp.max_step_m:
+        if abs(float(median(A.residual(pb)))) > gp.max_step_m:
             continue
         # facing boundaries: each side's points within the widest gap of the other side
         da, _ = cKDTree(pb).query(pa)
@@ -293,7 +294,7 @@ def _face_in_gap(allp: FloatArray, c3: FloatArray, u: FloatArray, across: FloatA
     r = allp @ s.normal + s.offset
     sig = float(noise_full.sigma_m(s.z_m))
     m = (t >= span[0]) & (t <= span[1]) & (np.abs(a - edge) <= 0.0015) & (r < -3.0 * sig) & (r > -12.0 * sig)
-    return float(np.median(a[m])) if m.sum() >= 10 else None
+    return float(median(a[m])) if m.sum() >= 10 else None
 
 
 def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,

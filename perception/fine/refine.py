@@ -81,7 +81,7 @@ def _pixel_box(intr: CameraIntrinsics, curve: FloatArray, margin_m: float, shape
     """(row0, row1, col0, col1) of the image box around ``curve``'s pixels grown by ``margin_m`` at its range
     (plus two pixels), in an image of ``shape`` subsampled by ``factor``; None when it is empty."""
     uv = intr.project(curve) / factor
-    z = float(np.median(curve[:, 2]))
+    z = float(median(curve[:, 2]))
     m = int(np.ceil(margin_m * intr.fx / factor / max(z, 1e-3))) + 2
     h, w = shape[:2]
     c0, c1 = int(max(np.floor(uv[:, 0].min()) - m, 0)), int(min(np.ceil(uv[:, 0].max()) + m + 1, w))
@@ -211,7 +211,7 @@ def _within_segmentation(s: SeamCurve, segmented: tuple[FloatArray, NDArray[np.i
     line0, u = s.points[0], s.points[-1] - s.points[0]
     length = float(np.linalg.norm(u))
     u = u / length
-    z = float(np.median(s.points[:, 2]))
+    z = float(median(s.points[:, 2]))
     sig, spacing = float(noise.sigma_m(z)), float(noise.spacing_m(z)) * factor
     reach = rp.end_near_m + 4.0 * sig + 3.0 * spacing
     sig_q = noise.sigma_m(q[:, 2])
@@ -423,7 +423,7 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
         d = q - line0
         t = d @ u
         dist = np.sqrt(np.maximum((d * d).sum(axis=1) - t * t, 0.0))
-        z = float(np.median(q[:, 2]))
+        z = float(median(q[:, 2]))
         sig = float(noise.sigma_m(z))
         off = other.residual(q)
         close = (off > 3.0 * sig) & (dist <= rp.end_near_m + 4.0 * sig + 3.0 * float(noise.spacing_m(z)))
@@ -445,7 +445,7 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
         # a face seen obliquely has few points near the line: its bins are widened until each is expected
         # to hold END_BIN_POINTS of them where the face is, so that its random holes are not taken for its end
         seen = count[inner][count[inner] > 0]
-        per_bin = float(np.median(seen)) if seen.size else 0.0
+        per_bin = float(median(seen)) if seen.size else 0.0
         need = END_BIN_POINTS / max(per_bin, 0.5)
         width = min(2 * int(np.ceil((need - 1.0) / 2.0)) + 1, 7)  # the smallest odd width (centred) holding four
         if width > 1:

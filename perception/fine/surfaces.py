@@ -356,7 +356,7 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
             break
         if inl.mean() < 0.5 * min_share:
             return None  # not nearly a cylinder: refitting would not make it one
-        sel = cres <= max(float(np.percentile(cres, 60)), float(np.median(tol)))
+        sel = cres <= max(float(np.percentile(cres, 60)), float(median(tol)))
         if sel.sum() < max(min_points, 20):
             return None
     if inl.mean() < min_share or inl.sum() < min_points or not _two_dimensional(q[inl], spacing, sp):
@@ -389,7 +389,7 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
             continue
         idx = np.flatnonzero(comp.reshape(-1) == c)
         q = flat_p[idx]
-        zc = float(np.median(q[:, 2]))
+        zc = float(median(q[:, 2]))
         tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
         nrm, d, rms = _fit_plane(q)
         for _ in range(3):
@@ -437,7 +437,7 @@ def _normals_follow(c: Surface, q: FloatArray, normals: FloatArray) -> bool:
     n = normals[ok]
     off = np.angle(np.exp(1j * (np.arctan2(n @ e2, n @ e1) - pos)))
     off = np.minimum(np.abs(off), np.pi - np.abs(off))  # normals point out of the surface or into it
-    return float(np.median(off)) < span / 8.0
+    return float(median(off)) < span / 8.0
 
 
 def _turns(c: Surface, q: FloatArray, min_turn_rad: float) -> bool:
@@ -526,7 +526,7 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
     plane_ids = [s.label for s in surfaces if s.kind == "plane"]
     if len(plane_ids) < 2:
         return labels, surfaces
-    z_typ = float(np.median([s.z_m for s in surfaces]))
+    z_typ = float(median([s.z_m for s in surfaces]))
     lo_cos, hi_cos = np.cos(np.radians(60.0)), np.cos(sp.merge_angle_rad)
     surf = SurfaceSet(labels, 1, tuple(surfaces))
     pairs = adjacent_pairs(surf, noise, reach_m=4.0 * float(noise.spacing_m(z_typ)),
@@ -555,7 +555,7 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
             continue
         idx = np.flatnonzero(np.isin(flat, members))
         q = p.reshape(-1, 3)[idx]
-        zc = float(np.median(q[:, 2]))
+        zc = float(median(q[:, 2]))
         tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
         found = _try_cylinder(q, normals.reshape(-1, 3)[idx], tol, len(new_surfaces), zc,
                               float(noise.spacing_m(zc)), 0.85, sp.min_pixels, sp)  # fmt: skip
@@ -590,13 +590,13 @@ def _merge_coaxial(p: FloatArray, lab: NDArray[np.int32], surfaces: list[Surface
                 continue
             big, small = (A, B) if A.n_points >= B.n_points else (B, A)
             q_small = p.reshape(-1, 3)[lab.reshape(-1) == small.label]
-            if float(np.median(np.abs(big.residual(q_small)))) > max(
+            if float(median(np.abs(big.residual(q_small)))) > max(
                 3.0 * float(noise.sigma_m(small.z_m)), 3.0 * big.rms_m
             ):
                 continue  # the larger piece's cylinder does not run through the smaller one
             idx = np.flatnonzero(np.isin(lab.reshape(-1), [a, b]))
             q = p.reshape(-1, 3)[idx]
-            zc = float(np.median(q[:, 2]))
+            zc = float(median(q[:, 2]))
             tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
             found = _try_cylinder(q, normals.reshape(-1, 3)[idx], tol, len(surfaces), zc,
                                   float(noise.spacing_m(zc)), 0.85, sp.min_pixels, sp)  # fmt: skip
@@ -661,5 +661,5 @@ def _merge_coplanar(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
             continue
         q = np.nan_to_num(p[new_labels == k])
         nrm, d, rms = _fit_plane(q[:: max(1, len(q) // 20000)])
-        merged.append(Surface(k, "plane", nrm, d, rms, len(q), mean_rows(q), float(np.median(q[:, 2]))))
+        merged.append(Surface(k, "plane", nrm, d, rms, len(q), mean_rows(q), float(median(q[:, 2]))))
     return new_labels, merged
