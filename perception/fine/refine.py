@@ -172,13 +172,13 @@ def _face_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: Su
     inner = lab[1:-1, 1:-1]
     interior = (inner >= 0) & (lab[:-2, 1:-1] == inner) & (lab[2:, 1:-1] == inner)
     interior &= (lab[1:-1, :-2] == inner) & (lab[1:-1, 2:] == inner)
-    rr, cc = np.nonzero(interior)
-    q = np.asarray(full[(rr + r0) * f, (cc + c0) * f], dtype=np.float64)
+    # the work pixels' full-resolution points, in raster order (a boolean mask takes them as np.nonzero lists them)
+    q = np.asarray(full[r0 * f : r1 * f : f, c0 * f : c1 * f : f][interior], dtype=np.float64)
     chord = curve[-1] - curve[0]
     length = float(np.linalg.norm(chord))
     along = (q - curve[0]) @ (chord / max(length, 1e-9))
     ok = np.isfinite(q[:, 2]) & (along >= 0.0) & (along <= length)  # beside the seam, not past its ends
-    return q[ok], inner[rr[ok], cc[ok]]
+    return q[ok], inner[interior][ok]
 
 
 def _labelled_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet, curve: FloatArray,
@@ -191,10 +191,10 @@ def _labelled_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
     r0, r1, c0, c1 = box
     lab = surfaces.labels[r0:r1, c0:c1]
-    rr, cc = np.nonzero(lab >= 0)
-    q = np.asarray(full[(rr + r0) * f, (cc + c0) * f], dtype=np.float64)
+    mask = lab >= 0
+    q = np.asarray(full[r0 * f : r1 * f : f, c0 * f : c1 * f : f][mask], dtype=np.float64)  # raster order
     ok = np.isfinite(q[:, 2])
-    return q[ok], lab[rr[ok], cc[ok]]
+    return q[ok], lab[mask][ok]
 
 
 def _within_segmentation(s: SeamCurve, segmented: tuple[FloatArray, NDArray[np.int32]], noise: NoiseModel,
@@ -249,6 +249,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     far_groups = [(int(k), np.flatnonzero(far_lab == k)) for k in np.unique(far_lab)]  # per surface, found once
     sig = noise.sigma_m(q[:, 2])
     spacing = noise.spacing_m(q[:, 2])
+    margin = rp.corner_sigma * sig + spacing  # per point: the corner's and a far edge's rounding
     a, b = A, B
     va = _side(a, b, p0, u, _towards(A, u, s))
     vb = _side(b, a, p0, u, _towards(B, u, s))
@@ -262,7 +263,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         tl = dl @ u
         sq = dl * dl
         dist = np.sqrt(np.maximum(sq[:, 0] + sq[:, 1] + sq[:, 2] - tl * tl, 0.0))  # the row sums' own order
-        clear = dist > rp.corner_sigma * sig + spacing
+        clear = dist > margin
         # a point another surface explains better is not this pair's (fragments of the pair's own faces are
         # not among the others: choosing between two near-copies of a face would bias its fit)
         mine = np.minimum(ra, rb) <= others
@@ -274,7 +275,6 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         on_b = side_b & (rb <= rp.inlier_sigma * _face_sigma(rb[side_b], sig, side_b))
         # a face that ends inside the band (a bevel's convex edge with the plate's top) is rounded there as
         # at the corner: its last few sigma would tilt the plane too
-        margin = rp.corner_sigma * sig + spacing
         on_a &= _short_of_far_edge(da, on_a, margin, rp.band_m)
         on_b &= _short_of_far_edge(db, on_b, margin, rp.band_m)
         if on_a.sum() < 10 or on_b.sum() < 10:
