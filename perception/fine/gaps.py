@@ -151,18 +151,17 @@ def inner_gap_seams(
         if window is None:
             continue
         (y0, y1, x0, x1), filled, inner = window
-        # the plane's residual at the pixels of its closed outline only (the window's others are never read),
-        # in raster order (a boolean mask takes them as np.nonzero lists them; their places only for holes)
-        pts = full[y0:y1, x0:x1][filled].astype(np.float64)
+        # the plane's residual at the pixels of its closed outline only (the window's others are never read)
+        fy, fx = np.nonzero(filled)
+        pts = full[fy + y0, fx + x0].astype(np.float64)
         z = pts[:, 2]
         res = np.einsum("ik,k->i", np.nan_to_num(pts), s.normal) + s.offset
         sig = noise_full.sigma_m(np.where(np.isfinite(z), z, s.z_m))
-        hole = inner[filled] & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
+        hole = inner[fy, fx] & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
         if hole.sum() < 15:
             continue
         on_plane = pts[np.isfinite(z) & (np.abs(res) <= 4.0 * sig)]
         # the hole pixels' rays (only theirs: the whole image's would cost more than the rest of the step)
-        fy, fx = np.nonzero(filled)
         uu, vv = (fx[hole] + x0).astype(np.float64), (fy[hole] + y0).astype(np.float64)
         r = np.stack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy, np.ones_like(uu)], axis=1)
         g_all = r * (-s.offset / (r @ s.normal))[:, None]  # the hole pixels' rays met with the plate's plane
