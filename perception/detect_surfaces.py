@@ -25,6 +25,7 @@ from perception.capture import Capture
 from perception.detect import DetectParams, StepLog, _to_seams
 from perception.errors import NoSeamFound
 from perception.fine.types import NoiseModel, Pair, SeamCurve, SurfaceSet
+from perception.fits import median
 from perception.seamfit import SeamGeometry
 from perception.seams import DetectionResult
 from perception.segmentation import Segmenter
@@ -205,4 +206,4 @@ def _duplicates(seam: SeamCurve, others: list[SeamCurve], *, within_m: float = 0
     from perception.evaluate import point_to_polyline_distance
 
     probe = seam.points[0] + np.linspace(0.0, 1.0, 11)[:, None] * (seam.points[-1] - seam.points[0])
-    return any(float(np.median(point_to_polyline_distance(probe, o.points))) < within_m for o in others)
+    return any(float(median(point_to_polyline_distance(probe, o.points))) < within_m for o in others)

@@ -4,7 +4,7 @@ planes, coordinates along a line, and the order of points along a curve. Pure fu
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from perception.cloud import kdtree
 
@@ -20,6 +20,28 @@ def sum_rows(p: FloatArray, weights: FloatArray | None = None) -> FloatArray:
     if p.ndim != 2 or len(p) < 2 or p.strides[1] >= p.strides[0]:
         return np.asarray(p.sum(axis=0) if weights is None else (weights[:, None] * p).sum(axis=0))
     return np.einsum("ij->j", p) if weights is None else np.einsum("i,ij->j", weights, p)
+
+
+def median(a: ArrayLike, *, overwrite_input: bool = False) -> np.float64:
+    """``np.median(a, overwrite_input=...)`` of a 1-D float64 array, the very value, in about half its time on
+    large arrays and without its general-axis overhead on small ones (~7 us a call; the fine stage takes
+    thousands of medians). One partition at the middle place: the upper middle value is there and the lower
+    one is the largest before it (the values np.median's two-place partition finds); their mean taken as
+    NumPy takes it, (a + b) / 2. A NaN sorts last, past the middle place: NaN when the upper half's largest
+    is NaN, as np.median. Anything else goes to ``np.median``."""
+    a = np.asarray(a)
+    n = a.size
+    if a.ndim != 1 or n < 3 or a.dtype != np.float64:
+        return np.median(a, overwrite_input=overwrite_input)
+    h = n // 2
+    if overwrite_input:
+        a.partition(h)
+        part = a
+    else:
+        part = np.partition(a, h)
+    if np.isnan(part[h:].max()):
+        return np.float64(np.nan)
+    return part[h] if n % 2 else (part[:h].max() + part[h]) / 2
 
 
 def mean_rows(p: FloatArray) -> FloatArray:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from perception.fine.types import FloatArray
+from perception.fits import median
 
 
 def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatArray, float, float] | None:
@@ -69,7 +70,7 @@ def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatA
 
     r0 = resid(np.array([0.0, 0.0, 0.0, 0.0, r]))
     rows = rows[:, np.abs(r0) <= np.percentile(np.abs(r0), 70)]  # the start's worst 30% (other faces) sit out
-    sig0 = float(np.median(np.abs(resid(np.array([0.0, 0.0, 0.0, 0.0, r]))))) + 1e-6
+    sig0 = float(median(np.abs(resid(np.array([0.0, 0.0, 0.0, 0.0, r]))))) + 1e-6
     sol = least_squares(resid, np.array([0.0, 0.0, 0.0, 0.0, r]), jac=jac, loss="soft_l1", f_scale=max(sig0, 1e-4),
                         x_scale=np.array([0.05, 0.05, scale, scale, scale]), ftol=1e-6, xtol=1e-6)  # fmt: skip
     x = sol.x

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from perception.fine.cylinder import axis_basis
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
+from perception.fits import median
 
 
 @dataclass(frozen=True)
@@ -126,7 +127,7 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
     qa, qb = pa[near_a][(ta >= lo) & (ta <= hi)], pb[near_b][(tb >= lo) & (tb <= hi)]
     if len(qa) < 3 or len(qb) < 3:
         return []
-    sa, sb = float(np.median(B.residual(qa))), float(np.median(A.residual(qb)))
+    sa, sb = float(median(B.residual(qa))), float(median(A.residual(qb)))
     if min(sa, sb) <= 0.0 or max(sa, sb) < fp.concave_sigma * sig:
         return []
     nb_ = int(np.ceil((hi - lo) / fp.bin_m))
@@ -178,11 +179,11 @@ def _plane_cylinder(P: Surface, C: Surface, pp: FloatArray, pc: FloatArray, nois
                     fp: FoldParams) -> list[SeamCurve]:  # fmt: skip
     if abs(float(P.normal @ C.axis)) < np.cos(np.radians(30.0)):
         return []  # only a cylinder standing on the plane (a pipe on a plate) makes a ring
-    z = float(np.median(np.vstack([pp, pc])[:, 2]))
+    z = float(median(np.vstack([pp, pc])[:, 2]))
     sig = float(noise.sigma_m(z))
     reach = fp.near_m + 3.0 * sig + 3.0 * float(noise.spacing_m(z))
     # concave: the plate's points are outside the cylinder, the cylinder's above the plate
-    if np.median(C.residual(pp)) <= 0.0 or np.median(P.residual(pc)) < fp.concave_sigma * sig:
+    if median(C.residual(pp)) <= 0.0 or median(P.residual(pc)) < fp.concave_sigma * sig:
         return []
     n_bins = max(36, int(np.ceil(2 * np.pi * C.radius / fp.bin_m)))
     theta = (np.arange(n_bins) + 0.5) * 2 * np.pi / n_bins

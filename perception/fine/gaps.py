@@ -12,6 +12,7 @@ from perception.capture import CameraIntrinsics
 from perception.fine.folds import contact_points
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
+from perception.fits import median
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ def gap_seams(
         pa, pb = contact_points(p, lab, pair)
         if len(pa) < 10 or len(pb) < 10:
             continue
-        if abs(float(np.median(A.residual(pb)))) > gp.max_step_m:
+        if abs(float(median(A.residual(pb)))) > gp.max_step_m:
             continue
         # facing boundaries: each side's points within the widest gap of the other side
         da, _ = cKDTree(pb).query(pa)
@@ -317,7 +318,7 @@ def _face_in_gap(allp: FloatArray, c3: FloatArray, u: FloatArray, across: FloatA
     r = allp @ s.normal + s.offset
     sig = float(noise_full.sigma_m(s.z_m))
     m = (t >= span[0]) & (t <= span[1]) & (np.abs(a - edge) <= 0.0015) & (r < -3.0 * sig) & (r > -12.0 * sig)
-    return float(np.median(a[m])) if m.sum() >= 10 else None
+    return float(median(a[m])) if m.sum() >= 10 else None
 
 
 def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,
@@ -338,13 +339,7 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
         d = d[ok] / ln[ok, None]
         o = left[i[ok, 0]]
         across = np.cross(normal, d)
-        # (trials, points) distances worked on in place: each fresh temporary of a few MB costs its page faults
-        dist = _dots(across, np.ascontiguousarray(left.T))
-        dist -= (across * o).sum(axis=1)[:, None]
-        np.abs(dist, out=dist)
-        inl = dist <= 0.001
-        best = int(np.argmax(inl.sum(axis=1)))
-        pts = left[inl[best]]
+        pts = left[_best_line(across, (across * o).sum(axis=1), np.ascontiguousarray(left.T), 0.001)]
         if len(pts) < 15:
             break
         # least squares on the inliers, then the points of this gap (within its widest) leave the pool
@@ -363,14 +358,43 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
     return out
 
 
-def _dots(a: FloatArray, rows: FloatArray) -> FloatArray:
+def _best_line(across: FloatArray, offset: FloatArray, rows: FloatArray, tol_m: float, *,
+               chunk: int = 1024) -> NDArray[np.bool_]:  # fmt: skip
+    """Per point given as the (3, N) ``rows``: whether it lies within ``tol_m`` of the trial line (unit
+    ``across`` (T, 3) and ``offset`` (T,): the points p with across . p = offset) that holds the most of
+    them (the first of equals). The (trials, points) distances are counted ``chunk`` points at a time, in
+    two arrays kept for the whole count: the whole matrix of a plate's many hole points ran to tens of MB,
+    whose page faults cost more than the arithmetic (each value is the whole matrix's: :func:`_dots`
+    works per element)."""
+    n = rows.shape[1]
+    counts = np.zeros(len(across), dtype=np.intp)
+    out, tmp = np.empty((len(across), min(chunk, n))), np.empty((len(across), min(chunk, n)))
+    for j in range(0, n, chunk):
+        m = min(chunk, n - j)
+        dist = _dots(across, rows[:, j : j + m], out=(out[:, :m], tmp[:, :m]))
+        dist -= offset[:, None]
+        np.abs(dist, out=dist)
+        counts += (dist <= tol_m).sum(axis=1)
+    best = int(np.argmax(counts))
+    dist_best = _dots(across[best : best + 1], rows)[0]
+    dist_best -= offset[best]
+    return np.abs(dist_best) <= tol_m
+
+
+def _dots(a: FloatArray, rows: FloatArray, *, out: tuple[FloatArray, FloatArray] | None = None) -> FloatArray:
     """(T, N) dot products of (T, 3) vectors ``a`` with N points given as their (3, N) coordinate rows: the
     values ``np.einsum("tk,nk->tn", a, points)`` gives (the detector's results were measured with it), which
     adds the products of x, then z, then y; here three outer products added in that order along contiguous
-    rows, 40% faster than einsum's loop over three values per element."""
-    out = np.multiply.outer(a[:, 0], rows[0])
-    tmp = np.multiply.outer(a[:, 2], rows[2])
-    out += tmp
+    rows, 40% faster than einsum's loop over three values per element. ``out``: two (T, N) arrays to work
+    in (the first is returned)."""
+    if out is None:
+        res = np.multiply.outer(a[:, 0], rows[0])
+        tmp = np.multiply.outer(a[:, 2], rows[2])
+    else:
+        res, tmp = out
+        np.multiply.outer(a[:, 0], rows[0], out=res)
+        np.multiply.outer(a[:, 2], rows[2], out=tmp)
+    res += tmp
     np.multiply.outer(a[:, 1], rows[1], out=tmp)
-    out += tmp
-    return out
+    res += tmp
+    return res

@@ -23,6 +23,7 @@ from perception.fine.refine import near_points
 from perception.fine.runs import covered_runs
 from perception.fine.surfaces import _fit_plane
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
+from perception.fits import median
 
 
 @dataclass(frozen=True)
@@ -66,7 +67,7 @@ def groove_seams(
         if A.kind != "plane" or B.kind != "plane" or float(A.normal @ B.normal) < np.cos(gp.max_angle_rad):
             continue
         pa, pb = contact_points(p, surfaces.labels, pair)
-        if len(pa) < 10 or len(pb) < 10 or abs(float(np.median(A.residual(pb)))) > gp.max_step_m:
+        if len(pa) < 10 or len(pb) < 10 or abs(float(median(A.residual(pb)))) > gp.max_step_m:
             continue
         frame = _facing_edges(pa, pb, A, B, noise, gp)
         if frame is None:

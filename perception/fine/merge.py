@@ -19,6 +19,7 @@ from perception.fine.folds import line_coords
 from perception.fine.groups import Groups
 from perception.fine.refine import near_points
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve
+from perception.fits import median
 
 
 @dataclass(frozen=True)
@@ -82,7 +83,7 @@ def _without_overlapping_twins(curves: list[SeamCurve], noise: NoiseModel, mp: M
             p0, u, length = _direction(long_)
             if abs(float(_direction(short)[1] @ u)) < np.cos(mp.twin_angle_rad):
                 continue
-            z = float(np.median(short.points[:, 2]))
+            z = float(median(short.points[:, 2]))
             within = max(mp.twin_offset_m, 6.0 * float(noise.sigma_m(z)))
             probe = short.points[0] + np.linspace(0.0, 1.0, 21)[:, None] * (short.points[-1] - short.points[0])
             t, off = line_coords(probe, p0, u)
@@ -115,7 +116,7 @@ def _one_seam(a: SeamCurve, b: SeamCurve, full: NDArray[np.float32], intr: Camer
     swapped = min(float(na[0] @ nb[1]), float(na[1] @ nb[0])) > cos_n
     if not (same or swapped):
         return False
-    z = float(np.median(np.concatenate([a.points[:, 2], b.points[:, 2]])))
+    z = float(median(np.concatenate([a.points[:, 2], b.points[:, 2]])))
     sig = float(noise.sigma_m(z))
     tol = max(mp.min_offset_m, 3.0 * sig)
     # the shorter piece on the longer one's line (its own direction is the less certain)

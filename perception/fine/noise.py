@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from perception.errors import NoSeamFound
 from perception.fine.types import NoiseModel
+from perception.fits import median
 
 FloatArray = NDArray[np.float64]
 
@@ -111,5 +112,5 @@ def estimate_noise(points: NDArray[np.floating], planes: LocalPlanes) -> NoiseMo
     with np.errstate(invalid="ignore", divide="ignore"):
         d = np.abs(np.diff(x / z, axis=1))
     d = d[np.isfinite(d)]
-    angle = float(np.median(d)) if d.size else 1e-3
+    angle = float(median(d)) if d.size else 1e-3
     return NoiseModel(sigma_1m_m=max(s, FLOOR_M), floor_m=FLOOR_M, pixel_angle_rad=max(angle, 1e-6))

@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.fine.types import FloatArray, NoiseModel, Surface
+from perception.fits import median
 
 SPLIT_RMS_SHARE = 0.7  # each part's rms at most this share of the one plane's
 
@@ -65,7 +66,7 @@ def split_parallel(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surf
         out[S.label] = replace(S, normal=n, offset=o0, rms_m=rms0, n_points=int((~part).sum()),
                                centroid=q[~part].mean(axis=0), z_m=float(np.median(q[~part][:, 2])))  # fmt: skip
         out.append(Surface(lab, "plane", n, o1, rms1, int(part.sum()), q[part].mean(axis=0),
-                           float(np.median(q[part][:, 2]))))  # fmt: skip
+                           float(median(q[part][:, 2]))))  # fmt: skip
         flat[idx[part]] = lab
     return labels, out
 

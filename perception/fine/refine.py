@@ -23,6 +23,7 @@ from perception.fine.root import open_root
 from perception.fine.runs import covered_runs, trim_stray_tails
 from perception.fine.surfaces import _fit_plane, fit_plane_rows
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
+from perception.fits import median
 
 COPY_SIGMA = 1.5  # see _others_residual
 ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
@@ -80,7 +81,7 @@ def _pixel_box(intr: CameraIntrinsics, curve: FloatArray, margin_m: float, shape
     """(row0, row1, col0, col1) of the image box around ``curve``'s pixels grown by ``margin_m`` at its range
     (plus two pixels), in an image of ``shape`` subsampled by ``factor``; None when it is empty."""
     uv = intr.project(curve) / factor
-    z = float(np.median(curve[:, 2]))
+    z = float(median(curve[:, 2]))
     m = int(np.ceil(margin_m * intr.fx / factor / max(z, 1e-3))) + 2
     h, w = shape[:2]
     c0, c1 = int(max(np.floor(uv[:, 0].min()) - m, 0)), int(min(np.ceil(uv[:, 0].max()) + m + 1, w))
@@ -107,7 +108,7 @@ def _others_residual(q: FloatArray, px: NDArray[np.int64], surfaces: SurfaceSet,
         if k < 0 or k in pair or k >= len(surfaces.surfaces):
             continue
         mine = lab == k
-        if min(float(np.median(ra[mine] / sig[mine])), float(np.median(rb[mine] / sig[mine]))) < COPY_SIGMA:
+        if min(float(median(ra[mine] / sig[mine])), float(median(rb[mine] / sig[mine]))) < COPY_SIGMA:
             continue
         best = np.minimum(best, np.abs(surfaces.surfaces[int(k)].residual(q)))
     return best
@@ -171,13 +172,13 @@ def _face_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: Su
     inner = lab[1:-1, 1:-1]
     interior = (inner >= 0) & (lab[:-2, 1:-1] == inner) & (lab[2:, 1:-1] == inner)
     interior &= (lab[1:-1, :-2] == inner) & (lab[1:-1, 2:] == inner)
-    rr, cc = np.nonzero(interior)
-    q = np.asarray(full[(rr + r0) * f, (cc + c0) * f], dtype=np.float64)
+    # the work pixels' full-resolution points, in raster order (a boolean mask takes them as np.nonzero lists them)
+    q = np.asarray(full[r0 * f : r1 * f : f, c0 * f : c1 * f : f][interior], dtype=np.float64)
     chord = curve[-1] - curve[0]
     length = float(np.linalg.norm(chord))
     along = (q - curve[0]) @ (chord / max(length, 1e-9))
     ok = np.isfinite(q[:, 2]) & (along >= 0.0) & (along <= length)  # beside the seam, not past its ends
-    return q[ok], inner[rr[ok], cc[ok]]
+    return q[ok], inner[interior][ok]
 
 
 def _labelled_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet, curve: FloatArray,
@@ -190,10 +191,10 @@ def _labelled_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
     r0, r1, c0, c1 = box
     lab = surfaces.labels[r0:r1, c0:c1]
-    rr, cc = np.nonzero(lab >= 0)
-    q = np.asarray(full[(rr + r0) * f, (cc + c0) * f], dtype=np.float64)
+    mask = lab >= 0
+    q = np.asarray(full[r0 * f : r1 * f : f, c0 * f : c1 * f : f][mask], dtype=np.float64)  # raster order
     ok = np.isfinite(q[:, 2])
-    return q[ok], lab[rr[ok], cc[ok]]
+    return q[ok], lab[mask][ok]
 
 
 def _within_segmentation(s: SeamCurve, segmented: tuple[FloatArray, NDArray[np.int32]], noise: NoiseModel,
@@ -210,7 +211,7 @@ def _within_segmentation(s: SeamCurve, segmented: tuple[FloatArray, NDArray[np.i
     line0, u = s.points[0], s.points[-1] - s.points[0]
     length = float(np.linalg.norm(u))
     u = u / length
-    z = float(np.median(s.points[:, 2]))
+    z = float(median(s.points[:, 2]))
     sig, spacing = float(noise.sigma_m(z)), float(noise.spacing_m(z)) * factor
     reach = rp.end_near_m + 4.0 * sig + 3.0 * spacing
     sig_q = noise.sigma_m(q[:, 2])
@@ -248,6 +249,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     far_groups = [(int(k), np.flatnonzero(far_lab == k)) for k in np.unique(far_lab)]  # per surface, found once
     sig = noise.sigma_m(q[:, 2])
     spacing = noise.spacing_m(q[:, 2])
+    margin = rp.corner_sigma * sig + spacing  # per point: the corner's and a far edge's rounding
     a, b = A, B
     va = _side(a, b, p0, u, _towards(A, u, s))
     vb = _side(b, a, p0, u, _towards(B, u, s))
@@ -261,7 +263,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         tl = dl @ u
         sq = dl * dl
         dist = np.sqrt(np.maximum(sq[:, 0] + sq[:, 1] + sq[:, 2] - tl * tl, 0.0))  # the row sums' own order
-        clear = dist > rp.corner_sigma * sig + spacing
+        clear = dist > margin
         # a point another surface explains better is not this pair's (fragments of the pair's own faces are
         # not among the others: choosing between two near-copies of a face would bias its fit)
         mine = np.minimum(ra, rb) <= others
@@ -273,7 +275,6 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         on_b = side_b & (rb <= rp.inlier_sigma * _face_sigma(rb[side_b], sig, side_b))
         # a face that ends inside the band (a bevel's convex edge with the plate's top) is rounded there as
         # at the corner: its last few sigma would tilt the plane too
-        margin = rp.corner_sigma * sig + spacing
         on_a &= _short_of_far_edge(da, on_a, margin, rp.band_m)
         on_b &= _short_of_far_edge(db, on_b, margin, rp.band_m)
         if on_a.sum() < 10 or on_b.sum() < 10:
@@ -298,7 +299,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         return s
     gap = 0.0
     if s.joint == "v_groove":
-        reach = min(float(np.median(da[all_a])), float(np.median(db[all_b])))
+        reach = min(float(median(da[all_a])), float(median(db[all_b])))
         line0, gap = _root_line(q, sig, line0, u, (va, vb), (a, b), (p0, p1), reach)
     ends = _supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
                            noise, rp)  # fmt: skip
@@ -345,7 +346,7 @@ def _fragments(groups: list[tuple[int, NDArray[np.intp]]], res: FloatArray, sig:
     :func:`_others_residual`). ``groups``: each surface label among the points with their indices."""
     out = np.zeros(len(res), bool)
     for k, idx in groups:
-        if k == own or float(np.median(res[idx] / sig[idx], overwrite_input=True)) < COPY_SIGMA:
+        if k == own or float(median(res[idx] / sig[idx], overwrite_input=True)) < COPY_SIGMA:
             out[idx] = True
     return out
 
@@ -363,19 +364,30 @@ def _robust_plane_fit(p: FloatArray, weights: FloatArray, *, iterations: int = 8
     """The plane of ``p`` (each point weighted by ``weights``) fitted with Tukey's biweight: a point's weight
     falls smoothly to zero at TUKEY_C robust sigmas (the residuals' MAD), so that the few points of another
     surface that pass the gates (the last pixel row of a convex edge beside a face seen a few pixels wide)
-    do not tilt the plane, while the face's own noise keeps 95% of the least-squares efficiency."""
+    do not tilt the plane, while the face's own noise keeps 95% of the least-squares efficiency. Every
+    iteration works in the same few arrays (a fresh array of a large fit's size costs its page faults); each
+    value is the one of ``w = weights * np.where(np.abs(x) < 1, (1 - x * x) ** 2, 0)``."""
     rows = np.ascontiguousarray(p.T)  # the (3, N) layout every refit's moments are taken in
-    n, off, _ = fit_plane_rows(p, rows, weights)
+    work = (np.empty_like(rows), np.empty_like(rows))
+    n, off, _ = fit_plane_rows(p, rows, weights, work=work)
+    r, a, w = np.empty(len(p)), np.empty(len(p)), np.empty(len(p))
+    cut = np.empty(len(p), dtype=bool)
     for _ in range(iterations):
-        r = p @ n + off
-        scale = 1.4826 * float(np.median(np.abs(r), overwrite_input=True))
+        np.matmul(p, n, out=r)
+        r += off
+        scale = 1.4826 * float(median(np.abs(r, out=a), overwrite_input=True))
         if scale <= 0.0:
             break
-        x = r / (TUKEY_C * scale)
-        w = weights * np.where(np.abs(x) < 1.0, (1.0 - x * x) ** 2, 0.0)
+        r /= TUKEY_C * scale  # x, the residual in units of the biweight's cut-off
+        np.logical_not(np.less(np.abs(r, out=a), 1.0, out=cut), out=cut)
+        np.multiply(r, r, out=a)
+        np.subtract(1.0, a, out=a)
+        np.multiply(a, a, out=a)
+        np.multiply(weights, a, out=w)
+        w[cut] = 0.0
         if w.sum() <= 0.0 or np.count_nonzero(w) < 10:
             break
-        n, off, _ = fit_plane_rows(p, rows, w)
+        n, off, _ = fit_plane_rows(p, rows, w, work=work)
     return n, off
 
 
@@ -384,7 +396,7 @@ def _short_of_far_edge(d: FloatArray, on: NDArray[np.bool_], margin: FloatArray,
     if on.sum() < 10:
         return on
     far = float(np.percentile(d[on], 99.0))
-    if far >= band_m - float(np.median(margin[on])):
+    if far >= band_m - float(median(margin[on])):
         return np.ones_like(on)
     return d < far - margin
 
@@ -395,8 +407,8 @@ def _face_sigma(res: FloatArray, sig: FloatArray, side: NDArray[np.bool_]) -> Fl
     if res.size < 10:
         return sig
     core = res[res <= np.percentile(res, 80)]
-    own = 1.4826 * float(np.median(core)) / 0.7  # the median of |r| over the inner 80% of a normal: 0.7 MAD
-    typical = float(np.median(sig[side]))
+    own = 1.4826 * float(median(core)) / 0.7  # the median of |r| over the inner 80% of a normal: 0.7 MAD
+    typical = float(median(sig[side]))
     return np.maximum(sig, np.clip(own, typical, 5.0 * typical))
 
 
@@ -411,7 +423,7 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
         d = q - line0
         t = d @ u
         dist = np.sqrt(np.maximum((d * d).sum(axis=1) - t * t, 0.0))
-        z = float(np.median(q[:, 2]))
+        z = float(median(q[:, 2]))
         sig = float(noise.sigma_m(z))
         off = other.residual(q)
         close = (off > 3.0 * sig) & (dist <= rp.end_near_m + 4.0 * sig + 3.0 * float(noise.spacing_m(z)))
@@ -433,7 +445,7 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
         # a face seen obliquely has few points near the line: its bins are widened until each is expected
         # to hold END_BIN_POINTS of them where the face is, so that its random holes are not taken for its end
         seen = count[inner][count[inner] > 0]
-        per_bin = float(np.median(seen)) if seen.size else 0.0
+        per_bin = float(median(seen)) if seen.size else 0.0
         need = END_BIN_POINTS / max(per_bin, 0.5)
         width = min(2 * int(np.ceil((need - 1.0) / 2.0)) + 1, 7)  # the smallest odd width (centred) holding four
         if width > 1:

@@ -19,6 +19,7 @@ from perception.capture import CameraIntrinsics
 from perception.fine.folds import contact_points
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
+from perception.fits import median
 
 
 @dataclass(frozen=True)
@@ -60,7 +61,7 @@ def step_seams(
         if len(pa) < 10 or len(pb) < 10:
             continue
         # upper: the plane on the camera side of the other by a plate's thickness
-        h_ab = float(np.median(B.residual(pa)))  # A's points above B
+        h_ab = float(median(B.residual(pa)))  # A's points above B
         if sp.min_step_m <= h_ab <= sp.max_step_m:
             up, low, pu, pl, h = A, B, pa, pb, h_ab
         elif sp.min_step_m <= -h_ab <= sp.max_step_m:
@@ -71,7 +72,7 @@ def step_seams(
             continue  # a plate lying on the table is not lapped onto it
         # the points are told apart as on the upper or the lower plate within on_plane_sigma of each plane:
         # planes closer than both bands cannot be told apart (a ghost layer of mixed pixels along an edge)
-        if h < 2.0 * sp.on_plane_sigma * float(noise.sigma_m(float(np.median(pu[:, 2])))):
+        if h < 2.0 * sp.on_plane_sigma * float(noise.sigma_m(float(median(pu[:, 2])))):
             continue
         n = low.normal
         c = pu.mean(axis=0)
@@ -157,13 +158,13 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
         for _ in range(3):  # mixed pixels at the edge's ends and corners sit off the face: trimmed
             sol, *_ = np.linalg.lstsq(np.column_stack([np.ones(int(keep.sum())), tf[keep]]), af[keep], rcond=None)
             res = af - (sol[0] + sol[1] * tf)
-            mad = 1.4826 * float(np.median(np.abs(res[keep]))) + 1e-6
+            mad = 1.4826 * float(median(np.abs(res[keep]))) + 1e-6
             keep = np.abs(res) <= 3.0 * mad
             if keep.sum() < 10:
                 break
         off, slope = float(sol[0]), float(sol[1])
     elif face.sum() >= 10:
-        off = float(np.median(a_off[face]))
+        off = float(median(a_off[face]))
     else:
         off = edge_up
     return off, slope, t_lo, t_hi, int(near_up.sum() + near_low.sum())

@@ -26,7 +26,7 @@ from perception.fine.groups import Groups
 from perception.fine.noise import LocalPlanes
 from perception.fine.parallel import split_parallel
 from perception.fine.types import NoiseModel, Surface, SurfaceSet
-from perception.fits import mean_rows, sum_rows
+from perception.fits import mean_rows, median, sum_rows
 
 FloatArray = NDArray[np.float64]
 
@@ -54,23 +54,25 @@ def _fit_plane(p: FloatArray, weights: FloatArray | None = None) -> tuple[FloatA
     return fit_plane_rows(p, np.ascontiguousarray(p.T), weights)
 
 
-def fit_plane_rows(p: FloatArray, rows: FloatArray,
-                   weights: FloatArray | None = None) -> tuple[FloatArray, float, float]:  # fmt: skip
+def fit_plane_rows(p: FloatArray, rows: FloatArray, weights: FloatArray | None = None, *,
+                   work: tuple[FloatArray, FloatArray] | None = None) -> tuple[FloatArray, float, float]:  # fmt: skip
     """:func:`_fit_plane` of (N, 3) points ``p`` also given as their (3, N) coordinate rows ``rows`` (a fit
     that refits the same points keeps both). The centroid is summed over ``p``
     (:func:`perception.fits.sum_rows`) and the points are centred and weighted in ``rows``, where that is one
     pass along each row (on (N, 3) rows it is a loop three values wide, ten times slower); every value is the
     one the (N, 3) arithmetic gives, the scatter matrix's product included (BLAS is handed the same matrices,
-    in the other layout)."""
+    in the other layout). ``work``: two (3, N) arrays the centred and the weighted rows are written to (a
+    fit repeated on the same points reuses them: a fresh array of that size costs its page faults)."""
     if weights is None:
         c = mean_rows(p)
-        q = rows - c[:, None]
+        q = np.subtract(rows, c[:, None], out=None if work is None else work[0])
         w, v = np.linalg.eigh(q @ q.T / max(len(p), 1))
     else:
         total = weights.sum()
         c = sum_rows(p, weights) / total
-        q = rows - c[:, None]
-        w, v = np.linalg.eigh((q * weights) @ q.T)
+        q = np.subtract(rows, c[:, None], out=None if work is None else work[0])
+        qw = np.multiply(q, weights, out=None if work is None else work[1])
+        w, v = np.linalg.eigh(qw @ q.T)
         w = w / total
     n = v[:, 0]
     if n @ c > 0:  # towards the camera
@@ -107,6 +109,8 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
     the points' flat pixel indices ``pixels`` are given."""
     left = np.arange(len(q))
     out: list[NDArray[np.int64]] = []
+    dist = np.empty((0, 0))
+    within = np.empty((0, 0), dtype=bool)
     while len(left) >= min_points and len(out) < max_planes:
         sample = left if len(left) <= 3000 else rng.choice(left, 3000, replace=False)
         tri = rng.integers(0, len(sample), (trials, 3))
@@ -116,24 +120,28 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
         good = norm > 1e-9
         nn = nn[good] / norm[good, None]
         dd = -(nn * a[good]).sum(axis=1)
-        # every trial's distances in one (sample, trials) matrix, worked on in place: a few MB per temporary,
-        # and each fresh one costs its page faults (it was 8x slower)
-        dist = q[sample] @ nn.T
+        # every trial's distances in one (sample, trials) matrix, worked on in place and kept for the next
+        # plane's trials: a few MB per temporary, and each fresh one costs its page faults (it was 8x slower)
+        if dist.shape != (len(sample), len(nn)):
+            dist, within = np.empty((len(sample), len(nn))), np.empty((len(sample), len(nn)), dtype=bool)
+        np.matmul(q[sample], nn.T, out=dist)
         dist += dd
         np.abs(dist, out=dist)
-        cnt = (dist <= tol[sample, None]).sum(axis=0)
+        cnt = np.less_equal(dist, tol[sample, None], out=within).sum(axis=0)
         if cnt.size == 0:
             break
         k = int(np.argmax(cnt))
         best_n, best_d, best_cnt = nn[k], dd[k], int(cnt[k])
         if best_cnt < 0.5 * min_points * len(sample) / len(left):
             break
-        inl = left[np.abs(q[left] @ best_n + best_d) <= tol[left]]
+        # the points left, gathered once for both takes (all of them, as they are, before the first plane)
+        q_left, tol_left = (q, tol) if len(left) == len(q) else (q[left], tol[left])
+        inl = left[np.abs(q_left @ best_n + best_d) <= tol_left]
         if len(inl) < min_points:
             break
         # refine on the inliers and take them again
         n2, d2, _ = _fit_plane(q[inl])
-        inl = left[np.abs(q[left] @ n2 + d2) <= tol[left]]
+        inl = left[np.abs(q_left @ n2 + d2) <= tol_left]
         if len(inl) < min_points:
             break
         piece = inl if pixels is None else inl[max(_connected_pieces(pixels[inl], width, 1), key=len)]
@@ -246,7 +254,7 @@ def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: F
     of outliers, but a face)."""
     w = p.shape[1]
     q = p.reshape(-1, 3)[idx]
-    zc = float(np.median(q[:, 2]))
+    zc = float(median(q[:, 2]))
     tol = sp.inlier_sigma * sig_all[idx]  # per point: the noise grows with range
     th = max(1, len(q) // 20000)  # fits on at most ~20k points; inliers are taken on all
     nrm, d, rms = _fit_plane(q[::th])
@@ -257,7 +265,7 @@ def _fit_patch(p: FloatArray, idx: NDArray[np.int64], pn: FloatArray, sig_all: F
         nrm, d, rms = _fit_plane(q[::th][inl])
     # a face seen obliquely is noisier than the range alone says: its own residual scale, up to 3x
     res = np.abs(q @ nrm + d)
-    scale = np.clip(1.4826 * np.median(res) / np.maximum(np.median(sig_all[idx]), 1e-9), 1.0, 3.0)
+    scale = np.clip(1.4826 * median(res) / np.maximum(median(sig_all[idx]), 1e-9), 1.0, 3.0)
     inl = res <= tol * scale
     spacing_c = float(noise.spacing_m(zc))
     if not _two_dimensional(q[::th], spacing_c, sp):
@@ -348,7 +356,7 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
             break
         if inl.mean() < 0.5 * min_share:
             return None  # not nearly a cylinder: refitting would not make it one
-        sel = cres <= max(float(np.percentile(cres, 60)), float(np.median(tol)))
+        sel = cres <= max(float(np.percentile(cres, 60)), float(median(tol)))
         if sel.sum() < max(min_points, 20):
             return None
     if inl.mean() < min_share or inl.sum() < min_points or not _two_dimensional(q[inl], spacing, sp):
@@ -381,7 +389,7 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
             continue
         idx = np.flatnonzero(comp.reshape(-1) == c)
         q = flat_p[idx]
-        zc = float(np.median(q[:, 2]))
+        zc = float(median(q[:, 2]))
         tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
         nrm, d, rms = _fit_plane(q)
         for _ in range(3):
@@ -429,7 +437,7 @@ def _normals_follow(c: Surface, q: FloatArray, normals: FloatArray) -> bool:
     n = normals[ok]
     off = np.angle(np.exp(1j * (np.arctan2(n @ e2, n @ e1) - pos)))
     off = np.minimum(np.abs(off), np.pi - np.abs(off))  # normals point out of the surface or into it
-    return float(np.median(off)) < span / 8.0
+    return float(median(off)) < span / 8.0
 
 
 def _turns(c: Surface, q: FloatArray, min_turn_rad: float) -> bool:
@@ -518,7 +526,7 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
     plane_ids = [s.label for s in surfaces if s.kind == "plane"]
     if len(plane_ids) < 2:
         return labels, surfaces
-    z_typ = float(np.median([s.z_m for s in surfaces]))
+    z_typ = float(median([s.z_m for s in surfaces]))
     lo_cos, hi_cos = np.cos(np.radians(60.0)), np.cos(sp.merge_angle_rad)
     surf = SurfaceSet(labels, 1, tuple(surfaces))
     pairs = adjacent_pairs(surf, noise, reach_m=4.0 * float(noise.spacing_m(z_typ)),
@@ -547,7 +555,7 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
             continue
         idx = np.flatnonzero(np.isin(flat, members))
         q = p.reshape(-1, 3)[idx]
-        zc = float(np.median(q[:, 2]))
+        zc = float(median(q[:, 2]))
         tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
         found = _try_cylinder(q, normals.reshape(-1, 3)[idx], tol, len(new_surfaces), zc,
                               float(noise.spacing_m(zc)), 0.85, sp.min_pixels, sp)  # fmt: skip
@@ -582,13 +590,13 @@ def _merge_coaxial(p: FloatArray, lab: NDArray[np.int32], surfaces: list[Surface
                 continue
             big, small = (A, B) if A.n_points >= B.n_points else (B, A)
             q_small = p.reshape(-1, 3)[lab.reshape(-1) == small.label]
-            if float(np.median(np.abs(big.residual(q_small)))) > max(
+            if float(median(np.abs(big.residual(q_small)))) > max(
                 3.0 * float(noise.sigma_m(small.z_m)), 3.0 * big.rms_m
             ):
                 continue  # the larger piece's cylinder does not run through the smaller one
             idx = np.flatnonzero(np.isin(lab.reshape(-1), [a, b]))
             q = p.reshape(-1, 3)[idx]
-            zc = float(np.median(q[:, 2]))
+            zc = float(median(q[:, 2]))
             tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
             found = _try_cylinder(q, normals.reshape(-1, 3)[idx], tol, len(surfaces), zc,
                                   float(noise.spacing_m(zc)), 0.85, sp.min_pixels, sp)  # fmt: skip
@@ -653,7 +661,7 @@ def _merge_coplanar_once(p: FloatArray, labels: NDArray[np.int32], surfaces: lis
         big, small = (su, v) if su.n_points >= sv.n_points else (sv, u)
         res = np.abs(big.residual(sample(small)))
         if float(su.normal @ sv.normal) >= cos_m:
-            if np.median(res) <= 3.0 * sig:
+            if median(res) <= 3.0 * sig:
                 sets.join(u, v)
             continue
         # a smaller piece whose points fit its own plane far better than the noise lets a surface fit (one
@@ -661,7 +669,7 @@ def _merge_coplanar_once(p: FloatArray, labels: NDArray[np.int32], surfaces: lis
         # any tilt about them; when its points lie on the larger's plane as closely as the larger's own do,
         # that is its plane
         spread = max(sig, big.rms_m)
-        if surfaces[small].rms_m <= 0.5 * sig and np.median(res) <= spread and np.percentile(res, 90) <= 2.5 * spread:
+        if surfaces[small].rms_m <= 0.5 * sig and median(res) <= spread and np.percentile(res, 90) <= 2.5 * spread:
             on_plane_of.setdefault(small, []).append(big.label)
     # ... absorbed into that plane only when it is the one plane it lies on, it is joined to nothing else
     # (a piece in a fold's band lies on both faces' planes, and must not join them), and that plane is not
@@ -688,5 +696,5 @@ def _merge_coplanar_once(p: FloatArray, labels: NDArray[np.int32], surfaces: lis
             continue
         q = np.nan_to_num(p[new_labels == k])
         nrm, d, rms = _fit_plane(q[:: max(1, len(q) // 20000)])
-        merged.append(Surface(k, "plane", nrm, d, rms, len(q), mean_rows(q), float(np.median(q[:, 2]))))
+        merged.append(Surface(k, "plane", nrm, d, rms, len(q), mean_rows(q), float(median(q[:, 2]))))
     return new_labels, merged

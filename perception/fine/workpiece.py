@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from perception.fine.folds import contact_points
 from perception.fine.types import FloatArray, NoiseModel, Pair, SurfaceSet
+from perception.fits import median
 
 PROMPT_RADIUS_PX = 2  # a prompt on an unlabelled work pixel (an edge, a dropout) takes the labels this near it
 TOUCH_M = 0.006  # two surfaces touch when their points come this close (plus noise and spacing)
@@ -81,7 +82,7 @@ def _touch(p: FloatArray, surfaces: SurfaceSet, pair: Pair, noise: NoiseModel) -
     pa, pb = contact_points(p, surfaces.labels, pair)
     if len(pa) == 0 or len(pb) == 0:
         return False
-    z = float(np.median(np.concatenate([pa[:, 2], pb[:, 2]])))
+    z = float(median(np.concatenate([pa[:, 2], pb[:, 2]])))
     reach = TOUCH_M + 3.0 * float(noise.sigma_m(z)) + 2.0 * float(noise.spacing_m(z))
     d, _ = cKDTree(pb).query(pa, distance_upper_bound=reach)
     return bool(np.isfinite(d).any())
