@@ -102,8 +102,9 @@ def test_a_butt_over_a_v_grooves_root_is_its_opening_and_one_beside_it_is_not() 
     from perception.fine.types import SeamCurve
 
     up = np.tile([0.0, 0.0, -1.0], (2, 1))  # the plates' normal, towards the camera
-    root = SeamCurve("linear", "v_groove", np.array([[-0.1, 0.0, 0.508], [0.1, 0.0, 0.508]]),
-                     np.tile([0.7, 0.0, -0.7], (2, 1)), np.tile([-0.7, 0.0, -0.7], (2, 1)), (1, 2), 100, 1e-4)  # fmt: skip
+    bevel_a, bevel_b = np.tile([0.7, 0.0, -0.7], (2, 1)), np.tile([-0.7, 0.0, -0.7], (2, 1))
+    root = SeamCurve("linear", "v_groove", np.array([[-0.1, 0.0, 0.508], [0.1, 0.0, 0.508]]), bevel_a, bevel_b,
+                     (1, 2), 100, 1e-4)  # fmt: skip
 
     def butt(y0: float, y1: float, x0: float = -0.08, x1: float = 0.08) -> SeamCurve:
         pts = np.array([[x0, y0, 0.5], [x1, y1, 0.5]])  # on the tops, 8 mm above the root
