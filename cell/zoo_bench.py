@@ -27,13 +27,14 @@ import json
 import os
 import statistics
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from cell.pools import ONE_THREAD_VARS, one_thread_children
 
 ZOO_VERSION = 3  # bump when the generator or renderer changes what a (family, seed) draws
 COVER_FOUND = 0.5
@@ -281,31 +282,9 @@ def _work(args: tuple[str, str, int, str | None]) -> CaptureScore:
     return score_capture(folder, method=method)[0]
 
 
-_ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
-
 def _init_worker() -> None:
-    # each worker is one of N on N cores: no nested thread pools
-    for var in _ONE_THREAD:
-        os.environ[var] = "1"
-
-
-@contextmanager
-def _one_thread_children() -> Iterator[None]:
-    """The thread-pool variables set to 1 while workers are spawned: a spawned worker imports NumPy (and
-    starts OpenBLAS's threads) when it unpickles its initializer, before the initializer runs, so only the
-    environment it inherits reaches its BLAS. Two-thread BLAS in each of N workers on N cores spends its
-    spinning threads' CPU time (a third more per capture)."""
-    saved = {var: os.environ.get(var) for var in _ONE_THREAD}
-    os.environ.update(dict.fromkeys(_ONE_THREAD, "1"))
-    try:
-        yield
-    finally:
-        for var, value in saved.items():
-            if value is None:
-                os.environ.pop(var, None)
-            else:
-                os.environ[var] = value
+    # each worker is one of N on N cores: no nested thread pools (for what reads the variables later)
+    os.environ.update(dict.fromkeys(ONE_THREAD_VARS, "1"))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -398,7 +377,7 @@ def run_zoo(
         from concurrent.futures import ProcessPoolExecutor
 
         ctx = mp.get_context("spawn")  # a clean interpreter per worker: no inherited open3d or thread state
-        with _one_thread_children(), ProcessPoolExecutor(max_workers=jobs, mp_context=ctx,
+        with one_thread_children(), ProcessPoolExecutor(max_workers=jobs, mp_context=ctx,
                                                         initializer=_init_worker) as pool:  # fmt: skip
             for k, score in enumerate(pool.map(_work, tasks, chunksize=1)):
                 scores.append(score)

@@ -205,6 +205,8 @@ def _run_pool(tasks: list[Task], jobs: int) -> list[dict[str, Any]]:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
+    from cell.pools import one_thread_children
+
     # forkserver: workers fork from a clean server that has imported the detector once (no fork of this
     # process's threads); spawn where there is no forkserver (Windows, macOS default)
     ctx: multiprocessing.context.BaseContext
@@ -214,7 +216,7 @@ def _run_pool(tasks: list[Task], jobs: int) -> list[dict[str, Any]]:
         ctx = server
     else:
         ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_warm_up) as pool:
+    with one_thread_children(), ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_warm_up) as pool:
         futures = {pool.submit(detect_task, t): i for i, t in enumerate(tasks)}
         return _collect(tasks, ((futures[f], f.result()) for f in as_completed(futures)))
 
