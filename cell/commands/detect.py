@@ -212,9 +212,11 @@ def print_table(result: Any, *, title: str) -> None:
     pc = result.point_counts
     t = result.timing_s
     removed = 1.0 - pc.get("cropped", 0) / max(pc.get("raw", 1), 1)
+    # the surfaces stage's "downsampled" count is its work image (every point at 640 pixels across)
+    third = "work image" if result.info.get("method") == "surfaces" else "downsampled"
     console.print(
         f"points: raw {pc.get('raw', 0)}, kept {pc.get('cropped', 0)} ({removed * 100:.1f}% removed), "
-        f"downsampled {pc.get('downsampled', 0)}; time: coarse {t.get('coarse', 0):.3f} s, "
+        f"{third} {pc.get('downsampled', 0)}; time: coarse {t.get('coarse', 0):.3f} s, "
         f"fine {t.get('fine', 0):.3f} s, total {t.get('total', 0):.3f} s"
     )
 
