@@ -159,18 +159,15 @@ def evaluate_seams(
         dists = [point_to_polyline_distance(pts, g.points_camera) for g in truth]
         med = [float(np.median(x)) for x in dists]
         if whole_camera is None:
-            best = int(np.argmin(med))
-            if med[best] <= match_tol_m:
-                assigned[best].append(d)
-                errors[d] = dists[best]
-            else:
-                false_ids.append(d)
-            continue
-        to_whole = [point_to_polyline_distance(pts, np.asarray(w, dtype=np.float64)) for w in whole_camera]
+            to_whole = dists
+        else:
+            to_whole = [point_to_polyline_distance(pts, np.asarray(w, dtype=np.float64)) for w in whole_camera]
         ok = [
-            med[i] <= match_tol_m or (float(np.median(to_whole[i])) <= match_tol_m and dists[i].min() <= cover_tol_m)
+            med[i] <= match_tol_m
+            or (whole_camera is not None and float(np.median(to_whole[i])) <= match_tol_m
+                and dists[i].min() <= cover_tol_m)
             for i in range(n_gt)
-        ]
+        ]  # fmt: skip
         if any(ok):
             best = min((i for i in range(n_gt) if ok[i]), key=lambda i: med[i])
             assigned[best].append(d)

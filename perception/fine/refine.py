@@ -163,17 +163,14 @@ def _face_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: Su
     (within its image box grown by ``reach_m``, between its ends), less a pixel along each surface's
     boundary (a face is rounded or blurred at its edges), and their labels. Fragments of one face that the
     segmentation left apart are all among them."""
-    f = surfaces.factor
-    box = _pixel_box(intr, curve, reach_m, surfaces.labels.shape, factor=f)
-    if box is None:
+    window = _work_window(full, intr, surfaces, curve, reach_m)
+    if window is None:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
-    r0, r1, c0, c1 = box
-    lab = np.pad(surfaces.labels[r0:r1, c0:c1], 1, mode="edge")
-    inner = lab[1:-1, 1:-1]
+    pts, inner = window
+    lab = np.pad(inner, 1, mode="edge")
     interior = (inner >= 0) & (lab[:-2, 1:-1] == inner) & (lab[2:, 1:-1] == inner)
     interior &= (lab[1:-1, :-2] == inner) & (lab[1:-1, 2:] == inner)
-    # the work pixels' full-resolution points, in raster order (a boolean mask takes them as np.nonzero lists them)
-    q = np.asarray(full[r0 * f : r1 * f : f, c0 * f : c1 * f : f][interior], dtype=np.float64)
+    q = np.asarray(pts[interior], dtype=np.float64)
     chord = curve[-1] - curve[0]
     length = float(np.linalg.norm(chord))
     along = (q - curve[0]) @ (chord / max(length, 1e-9))
@@ -185,16 +182,27 @@ def _labelled_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces
                      margin_m: float) -> tuple[FloatArray, NDArray[np.int32]]:  # fmt: skip
     """The full-resolution points at the work-resolution pixels of every segmented surface in ``curve``'s
     image box grown by ``margin_m``, and their labels."""
+    window = _work_window(full, intr, surfaces, curve, margin_m)
+    if window is None:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
+    pts, lab = window
+    mask = lab >= 0
+    q = np.asarray(pts[mask], dtype=np.float64)
+    ok = np.isfinite(q[:, 2])
+    return q[ok], lab[mask][ok]
+
+
+def _work_window(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet, curve: FloatArray,
+                 margin_m: float) -> tuple[NDArray[np.float32], NDArray[np.int32]] | None:  # fmt: skip
+    """The work-resolution window around ``curve``'s pixels grown by ``margin_m``: its pixels' full-resolution
+    points (a strided view of ``full``: a boolean mask on it takes them in raster order, as np.nonzero lists
+    them) and their labels; None when the window is empty."""
     f = surfaces.factor
     box = _pixel_box(intr, curve, margin_m, surfaces.labels.shape, factor=f)
     if box is None:
-        return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
+        return None
     r0, r1, c0, c1 = box
-    lab = surfaces.labels[r0:r1, c0:c1]
-    mask = lab >= 0
-    q = np.asarray(full[r0 * f : r1 * f : f, c0 * f : c1 * f : f][mask], dtype=np.float64)  # raster order
-    ok = np.isfinite(q[:, 2])
-    return q[ok], lab[mask][ok]
+    return full[r0 * f : r1 * f : f, c0 * f : c1 * f : f], surfaces.labels[r0:r1, c0:c1]
 
 
 def _within_segmentation(s: SeamCurve, segmented: tuple[FloatArray, NDArray[np.int32]], noise: NoiseModel,

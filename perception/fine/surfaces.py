@@ -15,7 +15,7 @@
 
 from __future__ import annotations
 
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -643,8 +643,9 @@ def _merge_coplanar_once(p: FloatArray, labels: NDArray[np.int32], surfaces: lis
     flat = labels.reshape(-1)
     pts_flat = p.reshape(-1, 3)
 
-    order = _stable_order(np.where(flat >= 0, flat, n_lab), n_lab + 1)  # each label's pixels, found once
-    starts = np.searchsorted(np.where(flat >= 0, flat, n_lab)[order], np.arange(n_lab + 1))
+    keys = np.where(flat >= 0, flat, n_lab)
+    order = _stable_order(keys, n_lab + 1)  # each label's pixels, found once
+    starts = np.searchsorted(keys[order], np.arange(n_lab + 1))
 
     def sample(lab: int) -> FloatArray:
         idx = order[starts[lab] : starts[lab + 1]]
@@ -674,9 +675,7 @@ def _merge_coplanar_once(p: FloatArray, labels: NDArray[np.int32], surfaces: lis
     # ... absorbed into that plane only when it is the one plane it lies on, it is joined to nothing else
     # (a piece in a fold's band lies on both faces' planes, and must not join them), and that plane is not
     # being absorbed itself (its plane may be a strip's: the next round tests against the merged plane)
-    group_size: dict[int, int] = {}
-    for i in range(len(surfaces)):
-        group_size[find(i)] = group_size.get(find(i), 0) + 1
+    group_size = Counter(find(i) for i in range(len(surfaces)))
     for small, bigs in on_plane_of.items():
         if len(bigs) == 1 and group_size[find(small)] == 1 and bigs[0] not in on_plane_of:
             sets.join(small, bigs[0])
