@@ -83,6 +83,9 @@ def gap_seams(
         on_plane = np.abs(strip[inside] @ n + 0.5 * (A.offset + B.offset)) <= 3.0 * sig
         if inside.sum() and on_plane.mean() > 0.3:
             continue
+        # and nothing stands in it (a wall between two stretches of one floor, its top seen in the strip)
+        if _stands_in(strip[inside], n, 0.5 * (A.offset + B.offset), sig):
+            continue
         mid = 0.5 * (edge_a + edge_b)
         ta, tb = (ea - c) @ u, (eb - c) @ u
         lo, hi = max(ta.min(), tb.min()), min(ta.max(), tb.max())
@@ -131,6 +134,15 @@ def over_groove(butt: SeamCurve, grooves: list[SeamCurve], *, margin_m: float = 
     return False
 
 
+def _stands_in(strip: FloatArray, normal: FloatArray, offset: float, sigma_m: float) -> bool:
+    """Whether something stands in a gap's strip: more than 5% of its points lie in front of the plates'
+    plane (``normal`` towards the camera) by over four sigma and a millimetre. A gap is empty: through it the
+    camera sees the plates' edge faces or what lies behind them, never something nearer than their top."""
+    if len(strip) == 0:
+        return False
+    return float(np.mean(strip @ normal + offset > 4.0 * sigma_m + 0.001)) > 0.05
+
+
 def _shared_span(ta: FloatArray, tb: FloatArray, t0: float, t1: float) -> tuple[float, float]:
     """[t0, t1] narrowed to where both sides' positions ``ta`` and ``tb`` (along a gap) within it reach;
     unchanged when either side has none there."""
@@ -138,6 +150,9 @@ def _shared_span(ta: FloatArray, tb: FloatArray, t0: float, t1: float) -> tuple[
     if not (len(in_a) and len(in_b)):
         return t0, t1
     return max(t0, float(in_a.min()), float(in_b.min())), min(t1, float(in_a.max()), float(in_b.max()))
+
+
+SIDE_BAND_M = 0.003  # the bands beside a gap its plates' density and holes are counted in
 
 
 @dataclass(frozen=True)
@@ -196,7 +211,7 @@ def inner_gap_seams(
         win = full[y0:y1, x0:x1]
         seen = win[np.isfinite(win[..., 2])].astype(np.float64)  # every point in the window, for the strip test
         for g, u in lines:
-            seam = _gap_between(g, u, s, on_plane, seen, noise_full, gp)
+            seam = _gap_between(g, u, s, on_plane, seen, noise_full, gp, all_holes=g_all)
             if seam is not None:
                 out.append(seam)
     return out
@@ -230,7 +245,7 @@ def _plane_window(surfaces: SurfaceSet, label: int, box: tuple[slice, slice], sh
 
 
 def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp: FloatArray, noise_full: NoiseModel,
-                 gp: InnerGapParams) -> SeamCurve | None:  # fmt: skip
+                 gp: InnerGapParams, *, all_holes: FloatArray) -> SeamCurve | None:  # fmt: skip
     """The butt seam along one line of hole points ``g`` (direction ``u``) on plane ``s``, when the plane's
     points ``pp`` lie on both sides of it all along, nothing of ``allp`` stands in it, the plates reach well
     beyond, and it is empty; None otherwise."""
@@ -261,8 +276,7 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     # nothing stands in the strip (a wall's base with its stereo shadow beside it is not a gap)
     d_all = allp - c3
     strip = (np.abs(d_all @ across) <= gap_half + 0.002) & (d_all @ u >= lo) & (d_all @ u <= hi)
-    in_front = (allp[strip] @ s.normal + s.offset) > 4.0 * float(noise_full.sigma_m(s.z_m)) + 0.001
-    if strip.any() and in_front.mean() > 0.05:
+    if _stands_in(allp[strip], s.normal, s.offset, float(noise_full.sigma_m(s.z_m))):
         return None
     # and the plates reach well beyond: not holes along a narrow face (a plate's edge face)
     far = (t_along >= lo) & (t_along <= hi) & (np.abs(a_off) >= gp.far_m) & (np.abs(a_off) <= 2 * gp.far_m)
@@ -278,15 +292,19 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     width = edge_r - edge_l
     if not (0.0 < width < 0.006):
         return None
-    # a gap is empty: inside it, far fewer pixels lie on the plate than beside it (random dropouts on a
-    # face seen at a grazing angle line up as well as a gap's dots, but between them the face is there)
+    # a gap is empty: inside it, far fewer pixels lie on the plate than beside it; and it stands out from its
+    # plates: beside it they hold holes at a tenth of its rate or less (a band of stereo dropouts, a face seen
+    # at a grazing angle, holds holes everywhere, and some of them line up). A gap narrower than the sample
+    # spacing is seen only in the rows whose pixel centre falls into it, its plates filling the rest of the
+    # strip: then it is empty in a fifth of its rows or more
     centre = 0.5 * (edge_l + edge_r)
     half = max(0.25 * width, 0.5 * float(noise_full.spacing_m(s.z_m)))
-    rel = np.abs(a_off - centre)
-    along = (t_along >= lo) & (t_along <= hi)
-    dens_in = float((along & (rel <= half)).sum()) / half
-    dens_side = float((along & (rel >= 0.5 * width + 0.001) & (rel <= 0.5 * width + 0.004)).sum()) / 0.003
-    if dens_side <= 0 or dens_in > 0.5 * dens_side:
+    on_in, on_side = _strip_counts(pp, c3, u, across, (lo, hi), centre, half, width)
+    holes_in, holes_side = _strip_counts(all_holes, c3, u, across, (lo, hi), centre, half, width)
+    rate_in = holes_in / max(holes_in + on_in, 1.0)
+    rate_side = holes_side / max(holes_side + on_side, 1.0)
+    empty = on_side > 0 and on_in / half <= 0.5 * on_side / SIDE_BAND_M
+    if rate_side > 0.1 * rate_in or not (empty or rate_in >= 0.2):
         return None
     # seen obliquely, the gap shows the far plate's edge face: the rays that meet it within the noise of
     # the top are taken for the plate, and those that meet it deeper cross the top's plane short of the edge,
@@ -297,15 +315,22 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     if face is not None and abs(view_across) > np.sin(np.radians(10.0)):
         edge_l, edge_r = (face, edge_r) if view_across > 0 else (edge_l, face)
         centre, width = 0.5 * (edge_l + edge_r), edge_r - edge_l
-    # a gap narrower than the sample spacing across it (on the plane, foreshortened by the view) holds no
-    # sample for sure: what looks like one is a row of dropouts (a face seen at a grazing angle)
-    if width < float(noise_full.spacing_m(float(c3[2]))) / np.sqrt(max(1.0 - view_across**2, 1e-12)):
-        return None
     mid = c3 + centre * across
     pts_seam = np.array([mid + lo * u, mid + hi * u])
     nrm = np.tile(s.normal, (2, 1))
     return SeamCurve("linear", "butt", pts_seam, nrm, nrm, (s.label, s.label), int(near.sum()), s.rms_m,
                      gap_m=width)  # fmt: skip
+
+
+def _strip_counts(q: FloatArray, c3: FloatArray, u: FloatArray, across: FloatArray, span: tuple[float, float],
+                  centre: float, half_m: float, width_m: float) -> tuple[float, float]:  # fmt: skip
+    """How many of the points ``q`` lie along ``span`` within ``half_m`` of a gap's ``centre`` (across it), and
+    how many in the two side bands from a millimetre to :data:`SIDE_BAND_M` more beyond its edges."""
+    d = q - c3
+    t, a = d @ u, np.abs(d @ across - centre)
+    along = (t >= span[0]) & (t <= span[1])
+    side = (a >= 0.5 * width_m + 0.001) & (a <= 0.5 * width_m + 0.001 + SIDE_BAND_M)
+    return float((along & (a <= half_m)).sum()), float((along & side).sum())
 
 
 def _face_in_gap(allp: FloatArray, c3: FloatArray, u: FloatArray, across: FloatArray, s: Surface,

@@ -59,6 +59,15 @@ def butt(gap: float = 0.002, eye: tuple[float, float, float] = (-0.10, -0.25, 0.
     return replace(sc, seams=(*sc.seams, seam))
 
 
+def wall() -> Scene:
+    """A wall 40 mm tall standing across a 12 mm floor plate end to end, 2 mm thick at its foot and 4 mm at its
+    top (its sides face away from a camera above it), seen from above: the floor on both sides of it and
+    its top between them."""
+    base = hull("base", box_corners(0.30, 0.24, 0.012))
+    wall = hull("wall", prism(np.array([[-0.001, 0.0], [0.001, 0.0], [0.002, 0.04], [-0.002, 0.04]]), 0.24), z=0.012)
+    return scene_of((base, wall), eye=(0.0, -0.04, 0.45))
+
+
 def lap(*, behind: bool = False) -> Scene:
     """A 5 mm plate overlapping a 10 mm one by 60 mm; seen towards its edge face, or from behind it."""
     lower = hull("lower", box_corners(0.22, 0.16, 0.010))
@@ -100,7 +109,8 @@ def v_groove(*, gap: float = 0.0, root: float = 0.0, near: bool = False) -> Scen
 @cache
 def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
     sc = {"tee": tee, "pipe": pipe, "thin_pipe_far": lambda: pipe(0.015, view_scale=1.8), "butt": butt,
-          "butt_oblique": lambda: butt(0.0015, eye=(-0.26, -0.12, 0.30)),
+          "butt_oblique": lambda: butt(0.0015, eye=(-0.26, -0.12, 0.30)), "butt_fine": lambda: butt(0.0006),
+          "wall": wall,
           "lap": lap, "lap_behind": lambda: lap(behind=True), "v_groove": v_groove,
           "v_groove_open": lambda: v_groove(gap=0.0016, root=0.001, near=True)}[name]()  # fmt: skip
     if noise == "stereo":

@@ -52,6 +52,54 @@ def test_a_gap_seen_obliquely_is_centred_between_the_plates_edges_not_on_the_fac
     assert s.gap_m == pytest.approx(0.0015, abs=3e-4)
 
 
+def test_a_gap_narrower_than_a_pixel_is_found_in_the_rows_that_see_it() -> None:
+    """0.6 mm between the plates, seen from 0.42 m where the pixels lie 0.9 mm apart: a row of pixels sees into
+    the gap where its centre falls in it, the plates fill the rest of the strip. The plates beside it hold
+    (almost) no holes, so the line of holes is the gap."""
+    res = rendered("butt_fine", "stereo")
+    p, _, nm, surf = work("butt_fine", "stereo")
+    sup = find_support(p, surf, nm)
+    assert nm.spacing_m(0.42) > 0.0006 / 0.7  # the gap is narrower than a pixel across it
+    seams = gap_seams(p, surf, adjacent_pairs(surf, nm), nm, support=sup)
+    seams += inner_gap_seams(res.capture.points_camera(), res.capture.intrinsics, surf, nm, support=sup)
+    (gt,) = res.ground_truth
+    (s,) = seams
+    samples = s.points[0] + np.linspace(0, 1, 50)[:, None] * (s.points[1] - s.points[0])
+    assert np.median(point_to_polyline_distance(samples, gt.points_camera)) < 2e-4
+    assert point_to_polyline_distance(s.points, gt.points_camera).max() < 5e-4
+
+
+def test_a_line_of_holes_in_a_band_of_dropouts_is_not_a_gap() -> None:
+    """A band 12 mm wide across the plate with 35% of its pixels dropped, 80% along a line in its middle: the
+    line stands out from the band by a little over twice, from a gap's plates by a hundred times."""
+    res = rendered("butt_fine", "stereo")
+    p, _, nm, surf = work("butt_fine", "stereo")
+    full = res.capture.points_camera().copy()
+    (gt,) = res.ground_truth
+    a, b = gt.points_camera[0], gt.points_camera[-1]
+    u = (b - a) / np.linalg.norm(b - a)
+    n = surf.surfaces[0].normal
+    across = np.cross(n, u)
+    # the band 20 mm to the side of the gap, on the right plate
+    off = (full - (a + 0.02 * across)) @ across
+    rng = np.random.default_rng(3)
+    drop = (np.abs(off) < 0.006) & (rng.random(off.shape) < 0.35)
+    drop |= (np.abs(off) < 0.0005) & (rng.random(off.shape) < 0.8)
+    full[drop] = np.nan
+    seams = inner_gap_seams(full, res.capture.intrinsics, surf, nm, support=find_support(p, surf, nm))
+    assert all(np.median(point_to_polyline_distance(s.points, gt.points_camera)) < 0.003 for s in seams)
+
+
+def test_a_wall_standing_between_two_stretches_of_one_floor_is_not_a_butt_gap() -> None:
+    """From above, the floor on both sides of a 2-4 mm wall is one plane in two pieces, a few millimetres apart:
+    the strip between them holds the wall's top, 40 mm in front of the floor. A gap is empty. (Exact depth: the
+    stereo shadow beside the wall parts the two pieces further than a gap's width.)"""
+    p, _, nm, surf = work("wall", "none")
+    assert sum(abs(s.offset - 0.438) < 0.002 for s in surf.surfaces) == 2  # the floor in two pieces
+    sup = find_support(p, surf, nm)
+    assert gap_seams(p, surf, adjacent_pairs(surf, nm), nm, support=sup) == []
+
+
 def test_a_plate_without_a_gap_gives_none() -> None:
     res = rendered("tee", "stereo")
     p, _, nm, surf = work("tee", "stereo")
