@@ -74,17 +74,14 @@ def gap_seams(
         width = edge_b - edge_a
         if not (gp.min_gap_m <= width <= gp.max_gap_m):
             continue
-        # nothing on the plane inside the strip (else it is one plate split by the segmentation)
+        # nothing on the plane inside the strip (else it is one plate split by the segmentation), and nothing
+        # stands in it (a wall between two stretches of one floor, its top seen in the strip)
         strip = p[ys, xs]
         strip = strip[np.isfinite(strip[:, 2])]
         off = (strip - c) @ across
-        inside = (off > edge_a + 0.25 * width) & (off < edge_b - 0.25 * width)
-        sig = float(noise.sigma_m(A.z_m))
-        on_plane = np.abs(strip[inside] @ n + 0.5 * (A.offset + B.offset)) <= 3.0 * sig
-        if inside.sum() and on_plane.mean() > 0.3:
-            continue
-        # and nothing stands in it (a wall between two stretches of one floor, its top seen in the strip)
-        if _stands_in(strip[inside], n, 0.5 * (A.offset + B.offset), sig):
+        inside = strip[(off > edge_a + 0.25 * width) & (off < edge_b - 0.25 * width)]
+        sig, top = float(noise.sigma_m(A.z_m)), 0.5 * (A.offset + B.offset)
+        if (len(inside) and np.mean(np.abs(inside @ n + top) <= 3.0 * sig) > 0.3) or _stands_in(inside, n, top, sig):
             continue
         mid = 0.5 * (edge_a + edge_b)
         ta, tb = (ea - c) @ u, (eb - c) @ u
