@@ -10,6 +10,7 @@ at under 75 degrees), as for every other joint.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,7 @@ from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
 from perception.fine.folds import contact_points
+from perception.fine.parallel import COHERENT_APART
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
 from perception.fits import median
@@ -70,9 +72,10 @@ def step_seams(
             continue
         if up.label in support or low.label in support:
             continue  # a plate lying on the table is not lapped onto it
-        # the points are told apart as on the upper or the lower plate within on_plane_sigma of each plane:
-        # planes closer than both bands cannot be told apart (a ghost layer of mixed pixels along an edge)
-        if h < 2.0 * sp.on_plane_sigma * float(noise.sigma_m(float(median(pu[:, 2])))):
+        # the points are told apart as on the upper or the lower plate within on_plane_sigma of each plane, at
+        # most half the step: planes under three sigma apart cannot be told apart (a ghost layer of mixed
+        # pixels along an edge; two plates split from one surface only when they lie three sigma apart)
+        if h < COHERENT_APART * float(noise.sigma_m(float(median(pu[:, 2])))):
             continue
         n = low.normal
         c = pu.mean(axis=0)
@@ -123,13 +126,18 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     sig = noise.sigma_m(q[:, 2])
     r_low = q @ low.normal + low.offset
     r_up = q @ up.normal + up.offset
-    on_up = np.abs(r_up) <= sp.on_plane_sigma * sig
-    on_low = np.abs(r_low) <= sp.on_plane_sigma * sig
+    band = np.minimum(sp.on_plane_sigma * sig, 0.5 * h)
+    on_up = np.abs(r_up) <= band
+    on_low = np.abs(r_low) <= band
     on_face = (r_low > 0.3 * h) & (r_low < 0.7 * h) & ~on_up
     if on_up.sum() < 10 or on_low.sum() < 10:
         return None
-    # along the edge: where the upper plate's points near the edge and the lower plate's beside it both are
-    edge_up = float(np.percentile(a_off[on_up], 98))
+    # along the edge: where the upper plate's points near the edge and the lower plate's beside it both are.
+    # Plates nearer than both bands are told apart only on average: the edge is where the points turn from
+    # the upper plate's side of the middle to the lower's (a few of the lower plate's points lie within the
+    # upper's band, and its outermost points would be theirs)
+    close = bool(np.any(band < sp.on_plane_sigma * sig))
+    edge_up = _crossing(a_off, r_low > 0.5 * h) if close else float(np.percentile(a_off[on_up], 98))
     near_up = on_up & (a_off > edge_up - 0.004)
     near_low = on_low & (a_off > edge_up) & (a_off < edge_up + 0.008)
     if not near_up.any() or not near_low.any():
@@ -151,7 +159,11 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     t_hi = min(float(t[near_up & inside].max()), float(t[near_low & inside].max()))
     face = on_face & (t >= t_lo) & (t <= t_hi)
     slope = 0.0
-    if face.sum() >= 20 and np.ptp(t[face]) > 0.5 * (t_hi - t_lo):
+    if close:
+        # the face's points are not told from either plate's noise: the crossing, found along the edge in
+        # pieces, places and turns it
+        off, slope = _crossing_line(a_off, t, r_low > 0.5 * h, (t_lo, t_hi), edge_up, sp.band_m)
+    elif face.sum() >= 20 and np.ptp(t[face]) > 0.5 * (t_hi - t_lo):
         # the edge face's own points place it, and turn it: a line a_off = off + slope t through them
         tf, af = t[face], a_off[face]
         keep = np.ones(len(tf), bool)
@@ -168,3 +180,43 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     else:
         off = edge_up
     return off, slope, t_lo, t_hi, int(near_up.sum() + near_low.sum())
+
+
+def _crossing(a_off: FloatArray, upper: NDArray[np.bool_]) -> float:
+    """The offset ``e`` that best parts the points into the upper plate's (``a_off`` < e) and the lower's: the
+    fewest points on the wrong side of it."""
+    order = np.argsort(a_off)
+    up = upper[order].astype(np.int64)
+    # wrong if e lies after k points: the lower ones among the first k and the upper ones after them
+    wrong = np.concatenate([[0], np.cumsum(1 - up)]) + (int(up.sum()) - np.concatenate([[0], np.cumsum(up)]))
+    k = int(np.argmin(wrong))
+    a = a_off[order]
+    if k == 0:
+        return float(a[0])
+    if k == len(a):
+        return float(a[-1])
+    return 0.5 * float(a[k - 1] + a[k])
+
+
+def _crossing_line(a_off: FloatArray, t: FloatArray, upper: NDArray[np.bool_], span: tuple[float, float],
+                   edge: float, band_m: float) -> tuple[float, float]:  # fmt: skip
+    """The edge as a line ``a_off = off + slope * t``: the crossing (:func:`_crossing`) in pieces of the
+    ``span`` about ``band_m`` long (at least three), each within ``band_m`` of ``edge``; fitted by least squares
+    on the pieces' crossings (weighted by their points). ``(edge, 0)`` when fewer than three pieces hold points
+    on both sides."""
+    pieces = max(3, int((span[1] - span[0]) / band_m))
+    bounds = np.linspace(span[0], span[1], pieces + 1)
+    near = np.abs(a_off - edge) <= band_m
+    tc, ec, wc = [], [], []
+    for t0, t1 in itertools.pairwise(bounds):
+        m = near & (t >= t0) & (t < t1)
+        if upper[m].sum() < 10 or (~upper[m]).sum() < 10:
+            continue
+        tc.append(0.5 * (t0 + t1))
+        ec.append(_crossing(a_off[m], upper[m]))
+        wc.append(float(m.sum()))
+    if len(tc) < 3:
+        return edge, 0.0
+    w = np.sqrt(np.asarray(wc))
+    sol, *_ = np.linalg.lstsq(np.column_stack([np.ones(len(tc)), tc]) * w[:, None], np.asarray(ec) * w, rcond=None)
+    return float(sol[0]), float(sol[1])

@@ -62,3 +62,32 @@ def test_a_thin_upper_plate_over_a_third_of_the_surface_is_split_at_its_true_hei
     lower, upper = sorted(out, key=lambda s: s.centroid[2], reverse=True)
     assert abs(float(upper.centroid @ lower.normal + lower.offset)) == pytest.approx(0.0025, abs=2e-4)
     assert np.mean((labels == upper.label) == upper_px) > 0.99
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_plates_four_sigma_apart_split_as_two_regions_and_a_noisier_face_stays_whole(seed: int) -> None:
+    """A 1.2 mm plate (4 sigma) over a third of one grown surface: one by one its heights overlap the lower
+    plate's, but as two regions of the image (each pixel with most of its neighbours) they are two planes
+    1.2 mm apart, told pixel for pixel. A face seen obliquely, twice as noisy as the capture's sigma at its
+    range, split in two by its heights is salt and pepper: it stays one."""
+    from perception.fine.parallel import split_parallel
+    from perception.fine.surfaces import SurfaceParams
+    from perception.fine.types import NoiseModel
+
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.linspace(-0.1, 0.1, 120), np.linspace(-0.06, 0.06, 80))
+    sigma, upper_px = 0.0003, u > 0.035
+    noise = NoiseModel(sigma_1m_m=sigma / 0.64, floor_m=1e-5, pixel_angle_rad=0.0012)
+    normals = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (*u.shape, 3)) + rng.normal(0.0, 0.01, (*u.shape, 3))
+    p = np.stack([u, v, 0.8 - np.where(upper_px, 0.0012, 0.0) + rng.normal(0.0, sigma, u.shape)], axis=-1)
+    labels, surfaces = _one_surface_of(p)
+    labels, out = split_parallel(p, labels, surfaces, normals, noise, min_pixels=SurfaceParams().min_pixels)
+    assert len(out) == 2
+    lower, upper = sorted(out, key=lambda s: s.centroid[2], reverse=True)
+    assert abs(float(upper.centroid @ lower.normal + lower.offset)) == pytest.approx(0.0012, abs=1e-4)
+    assert np.mean((labels == upper.label) == upper_px) > 0.995
+
+    p = np.stack([u, v, 0.8 + rng.normal(0.0, 2.0 * sigma, u.shape)], axis=-1)
+    labels, surfaces = _one_surface_of(p)
+    labels, out = split_parallel(p, labels, surfaces, normals, noise, min_pixels=SurfaceParams().min_pixels)
+    assert len(out) == 1
