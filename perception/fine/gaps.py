@@ -293,7 +293,8 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     # plates: beside it they hold holes at a tenth of its rate or less (a band of stereo dropouts, a face seen
     # at a grazing angle, holds holes everywhere, and some of them line up). A gap narrower than the sample
     # spacing is seen only in the rows whose pixel centre falls into it, its plates filling the rest of the
-    # strip: then it is empty in a fifth of its rows or more
+    # strip: then it is empty in a fifth of its rows or more, over twice the shortest gap's length (a short line
+    # of a few holes in one plate is as well a scanner's seam or a scratch)
     centre = 0.5 * (edge_l + edge_r)
     half = max(0.25 * width, 0.5 * float(noise_full.spacing_m(s.z_m)))
     on_in, on_side = _strip_counts(pp, c3, u, across, (lo, hi), centre, half, width)
@@ -301,7 +302,7 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     rate_in = holes_in / max(holes_in + on_in, 1.0)
     rate_side = holes_side / max(holes_side + on_side, 1.0)
     empty = on_side > 0 and on_in / half <= 0.5 * on_side / SIDE_BAND_M
-    if rate_side > 0.1 * rate_in or not (empty or rate_in >= 0.2):
+    if rate_side > 0.1 * rate_in or not (empty or (rate_in >= 0.2 and hi - lo >= 2.0 * gp.min_length_m)):
         return None
     # seen obliquely, the gap shows the far plate's edge face: the rays that meet it within the noise of
     # the top are taken for the plate, and those that meet it deeper cross the top's plane short of the edge,
