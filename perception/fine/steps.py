@@ -163,6 +163,10 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
         # the face's points are not told from either plate's noise: the crossing, found along the edge in
         # pieces, places and turns it
         off, slope = _crossing_line(a_off, t, r_low > 0.5 * h, (t_lo, t_hi), edge_up, sp.band_m)
+        # and only a clean step is taken so: the upper plate all across the band's half on its side and the
+        # lower plate on the other (a ghost layer of mixed pixels along a face is a strip, not a plate)
+        if not _clean_step(a_off - (off + slope * t), r_low > 0.5 * h, (t >= t_lo) & (t <= t_hi), sp.band_m):
+            return None
     elif face.sum() >= 20 and np.ptp(t[face]) > 0.5 * (t_hi - t_lo):
         # the edge face's own points place it, and turn it: a line a_off = off + slope t through them
         tf, af = t[face], a_off[face]
@@ -196,6 +200,16 @@ def _crossing(a_off: FloatArray, upper: NDArray[np.bool_]) -> float:
     if k == len(a):
         return float(a[-1])
     return 0.5 * float(a[k - 1] + a[k])
+
+
+def _clean_step(a_rel: FloatArray, upper: NDArray[np.bool_], along: NDArray[np.bool_], band_m: float,
+                share: float = 0.8) -> bool:  # fmt: skip
+    """Whether the points ``along`` the edge beyond half the band on the upper side of it (``a_rel`` < 0) are
+    ``share`` or more on the upper plate, and those beyond half the band on the other side on the lower."""
+    up_side, low_side = along & (a_rel < -0.5 * band_m), along & (a_rel > 0.5 * band_m)
+    if up_side.sum() < 10 or low_side.sum() < 10:
+        return False
+    return float(upper[up_side].mean()) >= share and float((~upper[low_side]).mean()) >= share
 
 
 def _crossing_line(a_off: FloatArray, t: FloatArray, upper: NDArray[np.bool_], span: tuple[float, float],

@@ -97,3 +97,18 @@ def test_a_lap_seam_ends_where_the_plates_last_points_are() -> None:
     p = s.points if X is None else transform_points(invert_X(X), s.points)
     d = np.linalg.norm(p[[0, -1]][:, None] - gt.points_camera[[0, -1]][None], axis=2).min(axis=1)
     assert d.max() < 5e-4
+
+
+def test_a_step_is_clean_only_with_a_plate_on_each_side_across_the_band() -> None:
+    """Where the plates' bands overlap the edge is placed by where the points turn from one plate to the
+    other; it is taken only where the upper plate fills the band's half on its side (80% of the points
+    there) and the lower plate the other: a ghost layer, a strip 3 mm wide along a face, is not a plate."""
+    from perception.fine.steps import _clean_step
+
+    rng = np.random.default_rng(0)
+    a_rel = rng.uniform(-0.012, 0.012, 4000)
+    along = np.ones(len(a_rel), bool)
+    flip = rng.random(len(a_rel)) < 0.1  # a tenth of the points on the other plate's side of the middle
+    assert _clean_step(a_rel, (a_rel < 0) ^ flip, along, 0.012)
+    strip = (a_rel < 0) & (a_rel > -0.003)
+    assert not _clean_step(a_rel, strip ^ flip, along, 0.012)
