@@ -180,8 +180,11 @@ def _full_resolution_steps(
         steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=skip,
                            read=read)  # fmt: skip
         # a step places the lap's edge from both plates and the edge face's own points; a fold on the narrow
-        # edge face, fitted on a few pixels, is the weaker estimate of the same seam
-        curves = [c for c in curves if not _duplicates(c, steps)] + steps
+        # edge face, fitted on a few pixels, is the weaker estimate of the same seam. A thick plate's edge face
+        # (a pad's, over 14 mm) is a surface of its own: its fold is the better one
+        laps = [c for c in steps if c.joint == "lap"]
+        curves = [c for c in curves if not _duplicates(c, laps)] + laps
+        curves += [c for c in steps if c.joint != "lap" and not _duplicates(c, curves)]
     with log.step("merge"):
         curves = merge_collinear(curves, organized, capture.intrinsics, noise_full)
         # a V-groove's opening between its plates' tops is not a butt gap beside it: the root is the seam

@@ -77,33 +77,88 @@ def step_seams(
         # pixels along an edge; two plates split from one surface only when they lie three sigma apart)
         if h < COHERENT_APART * float(noise.sigma_m(float(median(pu[:, 2])))):
             continue
-        n = low.normal
-        c = pu.mean(axis=0)
-        d = pu - c
-        d_in = d - np.outer(d @ n, n)
-        _, v = np.linalg.eigh(d_in.T @ d_in / len(d_in))
-        u = v[:, 2]
-        across = np.cross(n, u)
-        if float((pl.mean(axis=0) - c) @ across) < 0:
-            across = -across  # from the upper plate towards the lower one
-        # the edge face must be seen: the camera on its outer side, at under 75 degrees
-        view = -c / np.linalg.norm(c)
-        if float(view @ across) < np.cos(sp.max_incidence_rad):
-            continue
-        tu = (pu - c) @ u
-        edge = _edge_offset(full, intr, noise_full, up, low, c, u, across, h, sp,
-                            span=(float(tu.min()) - 0.01, float(tu.max()) + 0.01), read=read)  # fmt: skip
-        if edge is None:
-            continue
-        off, slope, t_lo, t_hi, n_pts = edge
-        if t_hi - t_lo < sp.min_length_m:
-            continue
-        pts = np.array([c + t * u + (off + slope * t) * across for t in (t_lo, t_hi)])
-        pts = pts - np.outer(pts @ n + low.offset, n)  # dropped onto the lower plate
-        joint: Joint = "lap" if h <= 0.014 else "fillet"
-        out.append(SeamCurve("linear", joint, pts, np.tile(low.normal, (2, 1)), np.tile(across, (2, 1)),
-                             (low.label, up.label), n_pts, max(up.rms_m, low.rms_m)))  # fmt: skip
+        runs = _edge_runs(pu, low.normal, 3.0 * float(noise.spacing_m(float(median(pu[:, 2])))))
+        for run in runs:
+            # one straight edge (a lap's): the lower plate's contact beside it says which way is out; several
+            # (a pad's sides): the upper plate lies inside each
+            outward = pl.mean(axis=0) if len(runs) == 1 else 2.0 * pu[run].mean(axis=0) - up.centroid
+            seam = _step_along(pu[run], outward, up, low, h, full, intr, noise_full, sp, read)
+            if seam is not None and not any(_same_line(seam, o) for o in out):
+                out.append(seam)
     return out
+
+
+def _step_along(pu: FloatArray, outward: FloatArray, up: Surface, low: Surface, h: float,
+                full: NDArray[np.float32], intr: CameraIntrinsics, noise_full: NoiseModel, sp: StepParams,
+                read: NDArray[np.bool_] | None) -> SeamCurve | None:  # fmt: skip
+    """The step's seam along one straight edge of the upper plate, from its contact points ``pu`` (``outward``:
+    a point on the lower plate's side of the edge); None where the edge face is not seen or the plates are not
+    both there along it."""
+    n = low.normal
+    c = pu.mean(axis=0)
+    d = pu - c
+    d_in = d - np.outer(d @ n, n)
+    _, v = np.linalg.eigh(d_in.T @ d_in / len(d_in))
+    u = v[:, 2]
+    across = np.cross(n, u)
+    if float((outward - c) @ across) < 0:
+        across = -across  # from the upper plate towards the lower one
+    # the edge face must be seen: the camera on its outer side, at under 75 degrees
+    view = -c / np.linalg.norm(c)
+    if float(view @ across) < np.cos(sp.max_incidence_rad):
+        return None
+    tu = (pu - c) @ u
+    edge = _edge_offset(full, intr, noise_full, up, low, c, u, across, h, sp,
+                        span=(float(tu.min()) - 0.01, float(tu.max()) + 0.01), read=read)  # fmt: skip
+    if edge is None:
+        return None
+    off, slope, t_lo, t_hi, n_pts = edge
+    if t_hi - t_lo < sp.min_length_m:
+        return None
+    pts = np.array([c + t * u + (off + slope * t) * across for t in (t_lo, t_hi)])
+    pts = pts - np.outer(pts @ n + low.offset, n)  # dropped onto the lower plate
+    joint: Joint = "lap" if h <= 0.014 else "fillet"
+    return SeamCurve("linear", joint, pts, np.tile(low.normal, (2, 1)), np.tile(across, (2, 1)),
+                     (low.label, up.label), n_pts, max(up.rms_m, low.rms_m))  # fmt: skip
+
+
+def _same_line(a: SeamCurve, b: SeamCurve, *, within_m: float = 0.002) -> bool:
+    """Whether straight seam ``a``'s ends and middle lie within ``within_m`` of straight seam ``b``'s line (two
+    runs of one edge's contact place the same step)."""
+    p0, p1 = b.points[0], b.points[-1]
+    u = (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-12)
+    probe = np.vstack([a.points[0], 0.5 * (a.points[0] + a.points[-1]), a.points[-1]]) - p0
+    return bool(np.all(np.linalg.norm(probe - np.outer(probe @ u, u), axis=1) <= within_m))
+
+
+def _edge_runs(pu: FloatArray, n: FloatArray, tol_m: float, *, min_points: int = 10, max_runs: int = 4,
+               trials: int = 200) -> list[NDArray[np.intp]]:  # fmt: skip
+    """The contact points ``pu`` of an upper plate split into its straight edges (lines in the plane of normal
+    ``n``, RANSAC on point pairs, ``tol_m`` wide), at most ``max_runs``: all of them as one when the best
+    line holds nine in ten (a lap's edge)."""
+    rng = np.random.default_rng(0)
+    left = np.arange(len(pu))
+    runs: list[NDArray[np.intp]] = []
+    while len(left) >= min_points and len(runs) < max_runs:
+        q = pu[left]
+        i = rng.integers(0, len(q), (trials, 2))
+        d = q[i[:, 1]] - q[i[:, 0]]
+        d -= np.outer(d @ n, n)
+        ln = np.linalg.norm(d, axis=1)
+        ok = ln > 4.0 * tol_m
+        if not ok.any():
+            break
+        across = np.cross(n, d[ok] / ln[ok, None])
+        dist = np.abs(q @ across.T - np.sum(q[i[ok, 0]] * across, axis=1))  # (points, trials)
+        hits = dist <= tol_m
+        inl = hits[:, int(np.argmax(hits.sum(axis=0)))]
+        if inl.sum() < min_points:
+            break
+        if not runs and inl.mean() >= 0.9:
+            return [np.arange(len(pu))]
+        runs.append(left[inl])
+        left = left[~inl]
+    return runs or [np.arange(len(pu))]
 
 
 def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: NoiseModel, up: Surface, low: Surface,
@@ -142,6 +197,10 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     near_low = on_low & (a_off > edge_up) & (a_off < edge_up + 0.008)
     if not near_up.any() or not near_low.any():
         return None  # the lower plate is not seen beside the edge: no step to place
+    # parallel plates are sampled alike: the lower one's 8 mm band beside the edge holds at least as many points
+    # as the upper one's 4 mm inside it (a far face seen past a near one's edge shows in a sliver)
+    if near_low.sum() < near_up.sum():
+        return None
     lo, hi = float(min(t[near_up].min(), t[near_low].min())), float(max(t[near_up].max(), t[near_low].max()))
     nb = max(1, int(np.ceil((hi - lo) / sp.bin_m)))
 
@@ -168,21 +227,13 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
         if not _clean_step(a_off - (off + slope * t), r_low > 0.5 * h, (t >= t_lo) & (t <= t_hi), sp.band_m):
             return None
     elif face.sum() >= 20 and np.ptp(t[face]) > 0.5 * (t_hi - t_lo):
-        # the edge face's own points place it, and turn it: a line a_off = off + slope t through them
-        tf, af = t[face], a_off[face]
-        keep = np.ones(len(tf), bool)
-        for _ in range(3):  # mixed pixels at the edge's ends and corners sit off the face: trimmed
-            sol, *_ = np.linalg.lstsq(np.column_stack([np.ones(int(keep.sum())), tf[keep]]), af[keep], rcond=None)
-            res = af - (sol[0] + sol[1] * tf)
-            mad = 1.4826 * float(median(np.abs(res[keep]))) + 1e-6
-            keep = np.abs(res) <= 3.0 * mad
-            if keep.sum() < 10:
-                break
-        off, slope = float(sol[0]), float(sol[1])
+        off, slope = _face_line(t[face], a_off[face])  # the edge face's own points place it, and turn it
     elif face.sum() >= 10:
         off = float(median(a_off[face]))
     else:
-        off = edge_up
+        # no edge face between the plates: the upper one's edge stands over a depth jump (a near face over a
+        # parallel one further off, the top of the near one's edge seen), not on the lower plate
+        return None
     return off, slope, t_lo, t_hi, int(near_up.sum() + near_low.sum())
 
 
@@ -200,6 +251,21 @@ def _crossing(a_off: FloatArray, upper: NDArray[np.bool_]) -> float:
     if k == len(a):
         return float(a[-1])
     return 0.5 * float(a[k - 1] + a[k])
+
+
+def _face_line(tf: FloatArray, af: FloatArray) -> tuple[float, float]:
+    """The edge face's line ``a_off = off + slope * t`` through its points, by least squares with the points
+    beyond three MADs trimmed, three times (mixed pixels at the edge's ends and corners sit off the face)."""
+    keep = np.ones(len(tf), bool)
+    sol = np.array([float(median(af)), 0.0])
+    for _ in range(3):
+        sol, *_ = np.linalg.lstsq(np.column_stack([np.ones(int(keep.sum())), tf[keep]]), af[keep], rcond=None)
+        res = af - (sol[0] + sol[1] * tf)
+        mad = 1.4826 * float(median(np.abs(res[keep]))) + 1e-6
+        keep = np.abs(res) <= 3.0 * mad
+        if keep.sum() < 10:
+            break
+    return float(sol[0]), float(sol[1])
 
 
 def _clean_step(a_rel: FloatArray, upper: NDArray[np.bool_], along: NDArray[np.bool_], band_m: float,
