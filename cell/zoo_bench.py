@@ -253,22 +253,28 @@ def _point_errors(seams: Any, truth: list[dict[str, Any]], pts: list[Any], whole
     ranges: list[np.ndarray] = []
     incid: list[np.ndarray] = []
     overreach_m = 0.0
+    runs: dict[int, list[int]] = {}  # each assigned detection's seen runs (two when it runs through a hidden stretch)
     for s in seams:
-        t = truth[s.index]
-        tp = np.asarray(t["points_camera"])
-        na, nb = np.asarray(t["normal_a_camera"]), np.asarray(t["normal_b_camera"])
         for d in s.detected_ids:
-            p = np.asarray(pts[d])
-            errs.append(point_to_polyline_distance(p, whole[t["seam_index"]]) * 1000.0)
-            errs_seen.append(point_to_polyline_distance(p, tp) * 1000.0)
-            dense = resample_polyline(p, 0.001)
-            beyond = point_to_polyline_distance(dense, tp) > COVER_TOL_M
-            overreach_m = max(overreach_m, 0.001 * int(beyond.sum()))
-            ranges.append(np.linalg.norm(p, axis=1))
-            k = np.argmin(((p[:, None, :] - tp[None]) ** 2).sum(axis=2), axis=1)
-            view = p / np.linalg.norm(p, axis=1, keepdims=True)
-            cos = np.minimum(-(na[k] * view).sum(axis=1), -(nb[k] * view).sum(axis=1))
-            incid.append(np.arccos(np.clip(cos, -1.0, 1.0)))
+            runs.setdefault(d, []).append(s.index)
+    for d, idx in runs.items():
+        t = truth[idx[0]]  # the runs of one detection are cut from one whole seam
+        tp = np.vstack([np.asarray(truth[i]["points_camera"]) for i in idx])
+        na = np.vstack([np.asarray(truth[i]["normal_a_camera"]) for i in idx])
+        nb = np.vstack([np.asarray(truth[i]["normal_b_camera"]) for i in idx])
+        p = np.asarray(pts[d])
+        errs.append(point_to_polyline_distance(p, whole[t["seam_index"]]) * 1000.0)
+        seen = [point_to_polyline_distance(p, np.asarray(truth[i]["points_camera"])) for i in idx]
+        errs_seen.append(np.min(seen, axis=0) * 1000.0)
+        dense = resample_polyline(p, 0.001)
+        near = [point_to_polyline_distance(dense, np.asarray(truth[i]["points_camera"])) for i in idx]
+        beyond = np.min(near, axis=0) > COVER_TOL_M
+        overreach_m = max(overreach_m, 0.001 * int(beyond.sum()))
+        ranges.append(np.linalg.norm(p, axis=1))
+        k = np.argmin(((p[:, None, :] - tp[None]) ** 2).sum(axis=2), axis=1)
+        view = p / np.linalg.norm(p, axis=1, keepdims=True)
+        cos = np.minimum(-(na[k] * view).sum(axis=1), -(nb[k] * view).sum(axis=1))
+        incid.append(np.arccos(np.clip(cos, -1.0, 1.0)))
 
     def joined(parts: list[np.ndarray]) -> np.ndarray:
         return np.concatenate(parts) if parts else np.zeros(0)

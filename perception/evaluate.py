@@ -149,6 +149,7 @@ def evaluate_seams(
     if whole_camera is not None and len(whole_camera) != n_gt:
         raise ValueError(f"whole_camera has {len(whole_camera)} seams for {n_gt} ground-truth seams")
     assigned: list[list[int]] = [[] for _ in range(n_gt)]
+    primary: dict[int, int] = {}  # the ground-truth seam each matched detection's errors are counted with
     errors: dict[int, FloatArray] = {}
     false_ids: list[int] = []
     for d, pts in enumerate(detected_camera):
@@ -171,7 +172,15 @@ def evaluate_seams(
         if any(ok):
             best = min((i for i in range(n_gt) if ok[i]), key=lambda i: med[i])
             assigned[best].append(d)
+            primary[d] = best
             errors[d] = to_whole[best]
+            # a seam seen in two runs (something in front of its middle) and detected whole, through the
+            # hidden stretch, is found in both: each run it reaches is cut from the same whole seam
+            if whole_camera is not None:
+                assigned_too = [i for i in range(n_gt) if i != best and ok[i]
+                                and np.array_equal(whole_camera[i], whole_camera[best])]  # fmt: skip
+                for i in assigned_too:
+                    assigned[i].append(d)
         else:
             false_ids.append(d)
     scores = []
@@ -185,7 +194,8 @@ def evaluate_seams(
             det = np.asarray(detected_camera[d], dtype=np.float64).reshape(-1, 3)
             covered |= point_to_polyline_distance(samples, det) <= cover_tol_m
         cov = float(covered.mean()) if len(samples) else 0.0
-        err = np.concatenate([errors[d] for d in assigned[i]]) if assigned[i] else np.zeros(0)
+        mine = [d for d in assigned[i] if primary[d] == i]
+        err = np.concatenate([errors[d] for d in mine]) if mine else np.zeros(0)
         all_err.append(err)
         rmse, p95, mx = _stats(err)
         length = g.length_m

@@ -124,3 +124,26 @@ def test_errors_are_measured_to_the_whole_seam_and_the_stretch_beyond_the_seen_r
     # far from every seam of the weldment: false
     far = score(seen + 0.05 * side)
     assert far.false_seams == 1 and far.unseen_seams == 0 and far.found == 2
+
+
+def test_a_detection_through_two_seen_runs_has_its_point_errors_counted_once() -> None:
+    """One detection along a whole seam seen in two runs is assigned to both: its points are errors once,
+    measured to the whole seam, and against the seen runs to the nearer run (not to the run it is far along)."""
+    from types import SimpleNamespace
+
+    from cell.zoo_bench import _point_errors
+
+    whole = [np.array([[0.0, 0.0, 0.5], [0.2, 0.0, 0.5]])]
+    normals = np.tile([0.0, 0.0, -1.0], (2, 1)).tolist()
+    truth = [{"points_camera": [[0.0, 0.0, 0.5], [0.08, 0.0, 0.5]], "seam_index": 0, "normal_a_camera": normals,
+              "normal_b_camera": normals},
+             {"points_camera": [[0.15, 0.0, 0.5], [0.2, 0.0, 0.5]], "seam_index": 0, "normal_a_camera": normals,
+              "normal_b_camera": normals}]  # fmt: skip
+    x = np.linspace(0.0, 0.2, 21)
+    det = np.column_stack([x, np.full_like(x, 0.0005), np.full_like(x, 0.5)])
+    rows = [SimpleNamespace(index=0, detected_ids=(0,)), SimpleNamespace(index=1, detected_ids=(0,))]
+    m = _point_errors(rows, truth, [det], whole)
+    assert m.errors_mm.shape == (21,) and np.allclose(m.errors_mm, 0.5)
+    # against the runs: 0.5 mm where a run is, up to 35 mm at the middle of the hidden stretch (0.115 m)
+    assert m.errors_seen_mm.shape == (21,) and m.errors_seen_mm.max() == pytest.approx(np.hypot(30.0, 0.5), abs=1e-9)
+    assert m.overreach_m == pytest.approx(0.064, abs=0.0015)  # the hidden stretch, more than 3 mm from a run

@@ -62,3 +62,23 @@ def test_a_detection_past_the_seen_run_is_matched_on_the_whole_seam_and_measured
     assert report.rmse_m == pytest.approx(0.0005, abs=1e-12) and report.max_m == pytest.approx(0.0005, abs=1e-12)
     with pytest.raises(ValueError, match="whole_camera has 2 seams for 1"):
         evaluate_seams([along_whole], truth, whole_camera=[whole, whole])
+
+
+def test_a_seam_seen_in_two_runs_and_detected_whole_is_found_in_both_its_errors_counted_once() -> None:
+    # the whole seam runs 0 .. 200 mm along x; something in front hides 80 .. 150 mm, so the shot counts two
+    # runs as seen; one detection runs all along it (0.5 mm off), another lies on a different seam
+    whole = np.array([[0.0, 0.0, 0.5], [0.2, 0.0, 0.5]])
+    other = np.array([[0.0, 0.1, 0.5], [0.2, 0.1, 0.5]])
+    truth = (GroundTruthSeam("linear", np.array([[0.0, 0.0, 0.5], [0.08, 0.0, 0.5]])),
+             GroundTruthSeam("linear", np.array([[0.15, 0.0, 0.5], [0.2, 0.0, 0.5]])),
+             GroundTruthSeam("linear", other[:, :]))  # fmt: skip
+    x = np.linspace(0.0, 0.2, 201)
+    along_whole = np.column_stack([x, np.full_like(x, 0.0005), np.full_like(x, 0.5)])
+    report = evaluate_seams([along_whole], truth, whole_camera=[whole, whole, other])
+    assert report.n_found == 2 and report.false_seams == ()
+    first, second, third = report.seams
+    assert first.detected_ids == second.detected_ids == (0,) and not third.found
+    assert first.coverage == second.coverage == 1.0
+    assert report.n_points == 201 and report.rmse_m == pytest.approx(0.0005, abs=1e-12)
+    # without the whole seams only the run nearer in median takes it
+    assert evaluate_seams([along_whole], truth).n_found == 0
