@@ -13,14 +13,20 @@ from perception.fine.support import find_support
 from .scenes import rendered, work
 
 
-@pytest.mark.parametrize("noise", ["none", "stereo"])
-def test_a_2_mm_butt_gap_is_found_on_its_centre_line(noise: str) -> None:
-    res = rendered("butt", noise)
-    p, _, nm, surf = work("butt", noise)
+def _gaps(name: str, noise: str, seed: int = 0) -> tuple:
+    """The render and the butt seams of both gap steps, as the pipeline runs them (the gap splits the plates
+    into two surfaces at the work resolution, or not)."""
+    res = rendered(name, noise, seed)
+    p, _, nm, surf = work(name, noise, seed)
     sup = find_support(p, surf, nm)
-    # the gap splits the plates into two surfaces at this resolution, or not: both detectors, as the pipeline
     seams = gap_seams(p, surf, adjacent_pairs(surf, nm), nm, support=sup)
     seams += inner_gap_seams(res.capture.points_camera(), res.capture.intrinsics, surf, nm, support=sup)
+    return res, seams
+
+
+@pytest.mark.parametrize("noise", ["none", "stereo"])
+def test_a_2_mm_butt_gap_is_found_on_its_centre_line(noise: str) -> None:
+    res, seams = _gaps("butt", noise)
     (gt,) = res.ground_truth
     near = [s for s in seams if np.median(point_to_polyline_distance(s.points, gt.points_camera)) < 0.003]
     assert len(near) == 1 and len(seams) == 1
@@ -40,11 +46,7 @@ def test_a_gap_seen_obliquely_is_centred_between_the_plates_edges_not_on_the_fac
     """Seen 41 degrees across the gap, the far plate's edge face shows in it; the rays that meet the face
     near the top pass for the plate and the deeper ones cross the top's plane short of the edge, so both
     counts put that edge inside the gap (by about 2 sigma tan 41 degrees). The face's own points place it."""
-    res = rendered("butt_oblique", "stereo", seed)
-    p, _, nm, surf = work("butt_oblique", "stereo", seed)
-    sup = find_support(p, surf, nm)
-    seams = gap_seams(p, surf, adjacent_pairs(surf, nm), nm, support=sup)
-    seams += inner_gap_seams(res.capture.points_camera(), res.capture.intrinsics, surf, nm, support=sup)
+    res, seams = _gaps("butt_oblique", "stereo", seed)
     (gt,) = res.ground_truth
     (s,) = seams
     samples = s.points[0] + np.linspace(0, 1, 50)[:, None] * (s.points[1] - s.points[0])
@@ -56,12 +58,8 @@ def test_a_gap_narrower_than_a_pixel_is_found_in_the_rows_that_see_it() -> None:
     """0.6 mm between the plates, seen from 0.42 m where the pixels lie 0.9 mm apart: a row of pixels sees into
     the gap where its centre falls in it, the plates fill the rest of the strip. The plates beside it hold
     (almost) no holes, so the line of holes is the gap."""
-    res = rendered("butt_fine", "stereo")
-    p, _, nm, surf = work("butt_fine", "stereo")
-    sup = find_support(p, surf, nm)
-    assert nm.spacing_m(0.42) > 0.0006 / 0.7  # the gap is narrower than a pixel across it
-    seams = gap_seams(p, surf, adjacent_pairs(surf, nm), nm, support=sup)
-    seams += inner_gap_seams(res.capture.points_camera(), res.capture.intrinsics, surf, nm, support=sup)
+    assert work("butt_fine", "stereo")[2].spacing_m(0.42) > 0.0006 / 0.7  # the gap is narrower than a pixel
+    res, seams = _gaps("butt_fine", "stereo")
     (gt,) = res.ground_truth
     (s,) = seams
     samples = s.points[0] + np.linspace(0, 1, 50)[:, None] * (s.points[1] - s.points[0])
