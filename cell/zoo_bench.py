@@ -7,7 +7,8 @@ Scoring (per capture, camera frame, the matching of :mod:`perception.evaluate`):
 - a ground-truth seam is **found** when a detected seam is assigned to it (median distance <= 5 mm to its
   seen run, or to the weldment's whole seam for a detection that reaches the seen run: a seam detected past
   the 75-degree rule is not a miss) and the assigned seams cover at least half of its seen run (within
-  3 mm); a seam found in pieces counts once and its pieces are counted in ``split_seams``;
+  3 mm); a seam found in pieces counts once and its pieces are counted in ``split_seams``; a seam seen in
+  two runs and detected whole through the hidden stretch between them is found in both (its errors count once);
 - a detected seam assigned to no ground-truth seam is **false**, unless it lies on a seam of the weldment
   that this shot does not count as seen (hidden, under 20 mm, or a face past 75 degrees): such a seam is
   **unseen**, neither found nor false (the visibility rules are thresholds, and a seam just past one of
