@@ -134,6 +134,35 @@ def _stats(err: FloatArray) -> tuple[float, float, float]:
     return float(np.sqrt(np.mean(err**2))), float(np.percentile(err, 95)), float(err.max())
 
 
+def _match(pts: FloatArray, truth: tuple[GroundTruthSeam, ...] | list[GroundTruthSeam],
+           whole_camera: list[FloatArray] | None, match_tol_m: float,
+           cover_tol_m: float) -> tuple[list[int], FloatArray] | None:  # fmt: skip
+    """The ground-truth seams one detection (``pts``) is matched to, the nearest in median first, and its
+    point errors (to that seam's whole seam when given); None when it matches none."""
+    if len(truth) == 0 or len(pts) == 0:
+        return None
+    dists = [point_to_polyline_distance(pts, g.points_camera) for g in truth]
+    med = [float(np.median(x)) for x in dists]
+    if whole_camera is None:
+        to_whole = dists
+    else:
+        to_whole = [point_to_polyline_distance(pts, np.asarray(w, dtype=np.float64)) for w in whole_camera]
+    ok = [
+        med[i] <= match_tol_m
+        or (whole_camera is not None and float(np.median(to_whole[i])) <= match_tol_m and dists[i].min() <= cover_tol_m)
+        for i in range(len(truth))
+    ]
+    if not any(ok):
+        return None
+    best = min((i for i in range(len(truth)) if ok[i]), key=lambda i: med[i])
+    # a seam seen in two runs (something in front of its middle) and detected whole, through the hidden
+    # stretch, is found in both: each run it reaches is cut from the same whole seam
+    also = [] if whole_camera is None else [
+        i for i in range(len(truth)) if i != best and ok[i] and np.array_equal(whole_camera[i], whole_camera[best])
+    ]  # fmt: skip
+    return [best, *also], to_whole[best]
+
+
 def evaluate_seams(
     detected_camera: list[FloatArray],
     truth: tuple[GroundTruthSeam, ...] | list[GroundTruthSeam],
@@ -153,36 +182,14 @@ def evaluate_seams(
     errors: dict[int, FloatArray] = {}
     false_ids: list[int] = []
     for d, pts in enumerate(detected_camera):
-        pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
-        if n_gt == 0 or len(pts) == 0:
+        match = _match(np.asarray(pts, dtype=np.float64).reshape(-1, 3), truth, whole_camera, match_tol_m, cover_tol_m)
+        if match is None:
             false_ids.append(d)
             continue
-        dists = [point_to_polyline_distance(pts, g.points_camera) for g in truth]
-        med = [float(np.median(x)) for x in dists]
-        if whole_camera is None:
-            to_whole = dists
-        else:
-            to_whole = [point_to_polyline_distance(pts, np.asarray(w, dtype=np.float64)) for w in whole_camera]
-        ok = [
-            med[i] <= match_tol_m
-            or (whole_camera is not None and float(np.median(to_whole[i])) <= match_tol_m
-                and dists[i].min() <= cover_tol_m)
-            for i in range(n_gt)
-        ]  # fmt: skip
-        if any(ok):
-            best = min((i for i in range(n_gt) if ok[i]), key=lambda i: med[i])
-            assigned[best].append(d)
-            primary[d] = best
-            errors[d] = to_whole[best]
-            # a seam seen in two runs (something in front of its middle) and detected whole, through the
-            # hidden stretch, is found in both: each run it reaches is cut from the same whole seam
-            if whole_camera is not None:
-                assigned_too = [i for i in range(n_gt) if i != best and ok[i]
-                                and np.array_equal(whole_camera[i], whole_camera[best])]  # fmt: skip
-                for i in assigned_too:
-                    assigned[i].append(d)
-        else:
-            false_ids.append(d)
+        runs, errors[d] = match
+        primary[d] = runs[0]
+        for i in runs:
+            assigned[i].append(d)
     scores = []
     all_err: list[FloatArray] = []
     covered_len = 0.0
