@@ -376,7 +376,7 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
         hit = np.bincount(np.clip(((t - t.min()) / 0.002).astype(int), 0, bins - 1), minlength=bins) > 0
         off = np.abs((left - c) @ np.cross(normal, u))
         left = left[off > 0.0025]
-        if length >= gp.min_length_m and hit.mean() >= 0.3:
+        if length >= gp.min_length_m and hit.mean() >= 0.4:
             out.append((pts, u))
     return out
 
