@@ -2,10 +2,13 @@
 
 Two parallel planes, the upper one a plate thickness (``min_step_m`` to ``max_step_m``) nearer the camera,
 meet in the image along the upper plate's edge. The edge face of a cut plate is square to it, so the seam is
-the upper plate's edge dropped onto the lower plate along its normal. At full resolution the edge is placed
-by the points on the edge face itself (between the two planes) when there are enough, else by the upper
-plate's outermost points. The seam is kept only where the edge face is seen (the camera on its outer side,
-at under 75 degrees), as for every other joint.
+the upper plate's edge dropped onto the lower plate along its normal. The upper plate's contact is split
+into its straight edges (a pad has four), each a step of its own. At full resolution the edge is placed by the
+points on the edge face itself (between the two planes); where the plates lie so near that their noise bands
+overlap (three to seven sigma apart), by where the points turn from the upper plate's side of the middle to
+the lower's, and only as a clean step. The seam is kept only where the edge face is seen (the camera on its
+outer side, at under 75 degrees), as for every other joint, and where the lower plate is seen beside the edge
+as densely as the upper plate inside it.
 """
 
 from __future__ import annotations
