@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -67,7 +67,7 @@ def split_parallel(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surf
                 continue
         elif (abs(o1 - o0) < COHERENT_APART * max(sig, rms0, rms1)
               or max(rms0, rms1) > max(SPLIT_RMS_SHARE * S.rms_m, 1.25 * sig)
-              or _coherence(*grid, part)[0] < COHERENT_SHARE):  # fmt: skip
+              or _coherence(grid, part)[0] < COHERENT_SHARE):  # fmt: skip
             # the groups, each pixel with most of its neighbours, lie three of their own sigma apart (a face seen
             # obliquely is noisier than the capture's sigma at its range) and each fits within the noise (their
             # rms is not cut at the middle, as the groups of planes six sigma apart nearly are)
@@ -81,36 +81,49 @@ def split_parallel(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surf
     return labels, out
 
 
-def _coherence(shape: tuple[int, ...], idx: NDArray[np.intp], part: NDArray[np.bool_]
-               ) -> tuple[float, NDArray[np.bool_]]:  # fmt: skip
-    """The share of a surface's pixels (flat indices ``idx`` into an image of ``shape``) that lie in the group
-    (``part`` or not) most of their neighbours of the surface within :data:`COHERENT_RADIUS_PX` lie in (about
-    one where the groups are two regions of the image, nearer a half where they are one plane's noise), and
-    that majority group per pixel."""
+@dataclass(frozen=True)
+class _Grid:
+    """A surface's pixels as flat indices ``idx`` into an image of ``shape`` (its bounding box), with how many
+    of the surface's pixels lie within :data:`COHERENT_RADIUS_PX` of each (itself included), counted once."""
+
+    shape: tuple[int, int]
+    idx: NDArray[np.intp]
+    count: FloatArray
+
+
+def _grid(shape: tuple[int, int], idx: NDArray[np.intp]) -> _Grid:
+    ones = np.ones(len(idx))
+    return _Grid(shape, idx, np.maximum(_neighbour_sum(shape, idx, ones), 1.0))
+
+
+def _neighbour_sum(shape: tuple[int, int], idx: NDArray[np.intp], values: FloatArray) -> FloatArray:
+    """Per pixel ``idx``: the sum of ``values`` over the pixels ``idx`` within :data:`COHERENT_RADIUS_PX`."""
     import cv2
 
     k = 2 * COHERENT_RADIUS_PX + 1
-    mine = np.zeros(shape[:2], np.float32)
-    upper = np.zeros(shape[:2], np.float32)
-    mine.reshape(-1)[idx] = 1.0
-    upper.reshape(-1)[idx[part]] = 1.0
-    share = cv2.boxFilter(upper, -1, (k, k), normalize=False) / np.maximum(
-        cv2.boxFilter(mine, -1, (k, k), normalize=False), 1.0)  # fmt: skip
-    majority = share.reshape(-1)[idx] > 0.5
+    image = np.zeros(shape, np.float64)
+    image.reshape(-1)[idx] = values
+    return np.asarray(cv2.boxFilter(image, -1, (k, k), normalize=False).reshape(-1)[idx])
+
+
+def _coherence(grid: _Grid, part: NDArray[np.bool_]) -> tuple[float, NDArray[np.bool_]]:
+    """The share of a surface's pixels that lie in the group (``part`` or not) most of their neighbours of the
+    surface lie in (about one where the groups are two regions of the image, nearer a half where they are one
+    plane's noise), and that majority group per pixel."""
+    majority = _neighbour_sum(grid.shape, grid.idx, part.astype(np.float64)) / grid.count > 0.5
     return float(np.mean(majority == part)), majority
 
 
-def _in_box(idx: NDArray[np.intp], box: tuple[slice, slice] | None, width: int
-            ) -> tuple[tuple[int, int], NDArray[np.intp]]:  # fmt: skip
-    """A surface's pixels (flat indices ``idx`` into an image ``width`` wide) as flat indices into its bounding
-    ``box``, with the box's shape: the neighbourhood sums are taken there."""
+def _in_box(idx: NDArray[np.intp], box: tuple[slice, slice] | None, width: int) -> _Grid:
+    """A surface's pixels (flat indices ``idx`` into an image ``width`` wide) on the grid of its bounding
+    ``box``: the neighbourhood sums are taken there."""
     assert box is not None
     rows, cols = np.divmod(idx, width)
     shape = (box[0].stop - box[0].start, box[1].stop - box[1].start)
-    return shape, (rows - box[0].start) * shape[1] + (cols - box[1].start)
+    return _grid(shape, (rows - box[0].start) * shape[1] + (cols - box[1].start))
 
 
-def _two_planes(q: FloatArray, n: FloatArray, ref: FloatArray, grid: tuple[tuple[int, int], NDArray[np.intp]],
+def _two_planes(q: FloatArray, n: FloatArray, ref: FloatArray, grid: _Grid,
                 sigma_m: float, min_pixels: int) -> tuple[FloatArray, NDArray[np.bool_]]:  # fmt: skip
     """Two parallel planes through the points ``q`` (pixels ``grid``): their common normal (on ``ref``'s
     side) and which points lie on the nearer one, fitted alternately from the two-class split of the heights
@@ -122,7 +135,7 @@ def _two_planes(q: FloatArray, n: FloatArray, ref: FloatArray, grid: tuple[tuple
     if near:
         # a plate a few sigma thick over a small share of the surface stands out of the noise so (split one by
         # one, the larger plate's noise competes with it)
-        h0 = _neighbour_mean(*grid, h0)
+        h0 = _neighbour_sum(grid.shape, grid.idx, h0) / grid.count
         part = h0 > _two_class_threshold(h0)
     for _ in range(30):
         if part.sum() < min_pixels or (~part).sum() < min_pixels:
@@ -135,7 +148,7 @@ def _two_planes(q: FloatArray, n: FloatArray, ref: FloatArray, grid: tuple[tuple
         if near:
             # a plate a few sigma thick leaves some of the other's points beyond the middle, and fitted as the
             # plate's they tilt the normal, which takes in more
-            new_part = _coherence(*grid, new_part)[1]
+            new_part = _coherence(grid, new_part)[1]
         if np.array_equal(new_part, part):
             break
         part = new_part
@@ -147,20 +160,6 @@ def _apart(q: FloatArray, part: NDArray[np.bool_], n: FloatArray) -> float:
     if part.all() or not part.any():
         return float("inf")
     return abs(float(q[part].mean(axis=0) @ n) - float(q[~part].mean(axis=0) @ n))
-
-
-def _neighbour_mean(shape: tuple[int, ...], idx: NDArray[np.intp], values: FloatArray) -> FloatArray:
-    """Per pixel of a surface (flat indices ``idx`` into an image of ``shape``): the mean of ``values`` over its
-    neighbours on the surface within :data:`COHERENT_RADIUS_PX` (itself included)."""
-    import cv2
-
-    k = 2 * COHERENT_RADIUS_PX + 1
-    mine = np.zeros(shape[:2], np.float64)
-    total = np.zeros(shape[:2], np.float64)
-    mine.reshape(-1)[idx] = 1.0
-    total.reshape(-1)[idx] = values
-    count = cv2.boxFilter(mine, -1, (k, k), normalize=False).reshape(-1)[idx]
-    return np.asarray(cv2.boxFilter(total, -1, (k, k), normalize=False).reshape(-1)[idx] / np.maximum(count, 1.0))
 
 
 def _first_split_coherent(p: FloatArray, labels: NDArray[np.int32], label: int, box: tuple[slice, slice] | None,
@@ -176,7 +175,7 @@ def _first_split_coherent(p: FloatArray, labels: NDArray[np.int32], label: int, 
     if len(idx) < 16:
         return True
     h = p[window][mine] @ normal
-    return _coherence(mine.shape, idx, h > _two_class_threshold(h))[0] >= COHERENT_FIRST
+    return _coherence(_grid(mine.shape, idx), h > _two_class_threshold(h))[0] >= COHERENT_FIRST
 
 
 def _two_class_threshold(h: FloatArray, bins: int = 256) -> float:
