@@ -362,7 +362,7 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
         d = d[ok] / ln[ok, None]
         o = left[i[ok, 0]]
         across = np.cross(normal, d)
-        pts = left[_best_line(across, (across * o).sum(axis=1), np.ascontiguousarray(left.T), 0.001)]
+        pts = left[best_line(across, (across * o).sum(axis=1), np.ascontiguousarray(left.T), 0.001)]
         if len(pts) < 15:
             break
         # least squares on the inliers, then the points of this gap (within its widest) leave the pool
@@ -381,7 +381,7 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
     return out
 
 
-def _best_line(across: FloatArray, offset: FloatArray, rows: FloatArray, tol_m: float, *,
+def best_line(across: FloatArray, offset: FloatArray, rows: FloatArray, tol_m: float, *,
                chunk: int = 1024) -> NDArray[np.bool_]:  # fmt: skip
     """Per point given as the (3, N) ``rows``: whether it lies within ``tol_m`` of the trial line (unit
     ``across`` (T, 3) and ``offset`` (T,): the points p with across . p = offset) that holds the most of

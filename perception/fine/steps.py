@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
 from perception.fine.folds import contact_points
+from perception.fine.gaps import best_line
 from perception.fine.parallel import COHERENT_APART
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
@@ -152,9 +153,7 @@ def _edge_runs(pu: FloatArray, n: FloatArray, tol_m: float, *, min_points: int =
         if not ok.any():
             break
         across = np.cross(n, d[ok] / ln[ok, None])
-        dist = np.abs(q @ across.T - np.sum(q[i[ok, 0]] * across, axis=1))  # (points, trials)
-        hits = dist <= tol_m
-        inl = hits[:, int(np.argmax(hits.sum(axis=0)))]
+        inl = best_line(across, np.sum(q[i[ok, 0]] * across, axis=1), np.ascontiguousarray(q.T), tol_m)
         if inl.sum() < min_points:
             break
         if not runs and inl.mean() >= 0.9:
