@@ -260,16 +260,15 @@ def _point_errors(seams: Any, truth: list[dict[str, Any]], pts: list[Any], whole
             runs.setdefault(d, []).append(s.index)
     for d, idx in runs.items():
         t = truth[idx[0]]  # the runs of one detection are cut from one whole seam
-        tp = np.vstack([np.asarray(truth[i]["points_camera"]) for i in idx])
+        seen_runs = [np.asarray(truth[i]["points_camera"]) for i in idx]
+        tp = np.vstack(seen_runs)
         na = np.vstack([np.asarray(truth[i]["normal_a_camera"]) for i in idx])
         nb = np.vstack([np.asarray(truth[i]["normal_b_camera"]) for i in idx])
         p = np.asarray(pts[d])
         errs.append(point_to_polyline_distance(p, whole[t["seam_index"]]) * 1000.0)
-        seen = [point_to_polyline_distance(p, np.asarray(truth[i]["points_camera"])) for i in idx]
-        errs_seen.append(np.min(seen, axis=0) * 1000.0)
+        errs_seen.append(np.min([point_to_polyline_distance(p, run) for run in seen_runs], axis=0) * 1000.0)
         dense = resample_polyline(p, 0.001)
-        near = [point_to_polyline_distance(dense, np.asarray(truth[i]["points_camera"])) for i in idx]
-        beyond = np.min(near, axis=0) > COVER_TOL_M
+        beyond = np.min([point_to_polyline_distance(dense, run) for run in seen_runs], axis=0) > COVER_TOL_M
         overreach_m = max(overreach_m, 0.001 * int(beyond.sum()))
         ranges.append(np.linalg.norm(p, axis=1))
         k = np.argmin(((p[:, None, :] - tp[None]) ** 2).sum(axis=2), axis=1)

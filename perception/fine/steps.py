@@ -79,9 +79,10 @@ def step_seams(
         # the points are told apart as on the upper or the lower plate within on_plane_sigma of each plane, at
         # most half the step: planes under three sigma apart cannot be told apart (a ghost layer of mixed
         # pixels along an edge; two plates split from one surface only when they lie three sigma apart)
-        if h < COHERENT_APART * float(noise.sigma_m(float(median(pu[:, 2])))):
+        z = float(median(pu[:, 2]))
+        if h < COHERENT_APART * float(noise.sigma_m(z)):
             continue
-        runs = _edge_runs(pu, low.normal, 3.0 * float(noise.spacing_m(float(median(pu[:, 2])))))
+        runs = _edge_runs(pu, low.normal, 3.0 * float(noise.spacing_m(z)))
         for run in runs:
             # one straight edge (a lap's): the lower plate's contact beside it says which way is out; several
             # (a pad's sides): the upper plate lies inside each
