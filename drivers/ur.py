@@ -590,7 +590,18 @@ class URRobot:
         return st
 
     def _raise_refused(self, what: str, X_target: FloatArray) -> None:
+        # a safety stop that made the controller refuse can reach the receive stream a sample after the
+        # refusal: the stream is read until two fresh samples have come (within its staleness bound) before
+        # the refusal is put down to the target
         st = self._status()
+        stamp, fresh = self._last_timestamp, 0
+        limit = time.monotonic() + self.stale_after_s
+        while fresh < 2 and time.monotonic() < limit:
+            self._raise_if_stopped(st, f"when {what} was sent")
+            time.sleep(self.poll_s)
+            st = self._status()
+            if self._last_timestamp != stamp:
+                stamp, fresh = self._last_timestamp, fresh + 1
         self._raise_if_stopped(st, f"when {what} was sent")
         target = np.round(X_target[:3, 3], 4).tolist()
         if not st.program_running:
