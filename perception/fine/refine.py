@@ -262,6 +262,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     va = _side(a, b, p0, u, _towards(A, u, s))
     vb = _side(b, a, p0, u, _towards(B, u, s))
     line0 = p0
+    last: tuple[NDArray[np.bool_], NDArray[np.bool_], FloatArray, FloatArray] | None = None
     for _ in range(rp.iterations):
         ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
         dl = q - line0
@@ -288,6 +289,10 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         if on_a.sum() < 10 or on_b.sum() < 10:
             return s
         fa, fb = _beyond_band(far, far_groups, sig_far, (a, b), (A.label, B.label), line0, (va, vb), rp)
+        chosen = (on_a, on_b, fa, fb)
+        if last is not None and all(np.array_equal(x, y) for x, y in zip(chosen, last, strict=True)):
+            break  # the same points as the last refit: it would give the same planes, line and sides again
+        last = chosen
         a = _refit(a, A, q[on_a], fa, weight_beyond)
         b = _refit(b, B, q[on_b], fb, weight_beyond)
         line = plane_line(a, b, 0.5 * (p0 + p1), along=u)
