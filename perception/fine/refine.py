@@ -264,28 +264,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     line0 = p0
     last: tuple[NDArray[np.bool_], NDArray[np.bool_], FloatArray, FloatArray] | None = None
     for _ in range(rp.iterations):
-        ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
-        dl = q - line0
-        da, db = dl @ va, dl @ vb
-        # near the corner a point lies within the noise of both faces: those points would pull each plane
-        # towards the other, so the fits use what lies beyond a few sigma of the current line
-        tl = dl @ u
-        sq = dl * dl
-        dist = np.sqrt(np.maximum(sq[:, 0] + sq[:, 1] + sq[:, 2] - tl * tl, 0.0))  # the row sums' own order
-        clear = dist > margin
-        # a point another surface explains better is not this pair's (fragments of the pair's own faces are
-        # not among the others: choosing between two near-copies of a face would bias its fit)
-        mine = np.minimum(ra, rb) <= others
-        side_a = (ra <= rb) & mine & (da > -0.0005) & (da <= rp.band_m) & clear
-        side_b = (rb < ra) & mine & (db > -0.0005) & (db <= rp.band_m) & clear
-        # each face's own noise (a face seen obliquely is noisier): gating it at the capture's typical
-        # sigma would cut one tail of its residuals and tilt the plane
-        on_a = side_a & (ra <= rp.inlier_sigma * _face_sigma(ra[side_a], sig, side_a))
-        on_b = side_b & (rb <= rp.inlier_sigma * _face_sigma(rb[side_b], sig, side_b))
-        # a face that ends inside the band (a bevel's convex edge with the plate's top) is rounded there as
-        # at the corner: its last few sigma would tilt the plane too
-        on_a &= _short_of_far_edge(da, on_a, margin, rp.band_m)
-        on_b &= _short_of_far_edge(db, on_b, margin, rp.band_m)
+        on_a, on_b = _fit_sets(q, others, (a, b), line0, u, (va, vb), sig, margin, rp)
         if on_a.sum() < 10 or on_b.sum() < 10:
             return s
         fa, fb = _beyond_band(far, far_groups, sig_far, (a, b), (A.label, B.label), line0, (va, vb), rp)
@@ -322,6 +301,38 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
                                                 (q[on_b] @ b.normal + b.offset) ** 2]))))  # fmt: skip
     return replace(s, points=ends, normals_a=np.tile(a.normal, (2, 1)), normals_b=np.tile(b.normal, (2, 1)),
                    support=int(on_a.sum() + on_b.sum()), rms_m=rms, gap_m=gap)  # fmt: skip
+
+
+def _fit_sets(q: FloatArray, others: FloatArray, planes: tuple[Surface, Surface], line0: FloatArray, u: FloatArray,
+              across: tuple[FloatArray, FloatArray], sig: FloatArray, margin: FloatArray,
+              rp: RefineParams) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:  # fmt: skip
+    """Per point of ``q``: whether it goes into face A's refit and into face B's, for the current planes, line
+    (``line0``, ``u``) and directions ``across`` it into each face."""
+    a, b = planes
+    va, vb = across
+    ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
+    dl = q - line0
+    da, db = dl @ va, dl @ vb
+    # near the corner a point lies within the noise of both faces: those points would pull each plane
+    # towards the other, so the fits use what lies beyond a few sigma of the current line
+    tl = dl @ u
+    sq = dl * dl
+    dist = np.sqrt(np.maximum(sq[:, 0] + sq[:, 1] + sq[:, 2] - tl * tl, 0.0))  # the row sums' own order
+    clear = dist > margin
+    # a point another surface explains better is not this pair's (fragments of the pair's own faces are
+    # not among the others: choosing between two near-copies of a face would bias its fit)
+    mine = np.minimum(ra, rb) <= others
+    side_a = (ra <= rb) & mine & (da > -0.0005) & (da <= rp.band_m) & clear
+    side_b = (rb < ra) & mine & (db > -0.0005) & (db <= rp.band_m) & clear
+    # each face's own noise (a face seen obliquely is noisier): gating it at the capture's typical
+    # sigma would cut one tail of its residuals and tilt the plane
+    on_a = side_a & (ra <= rp.inlier_sigma * _face_sigma(ra[side_a], sig, side_a))
+    on_b = side_b & (rb <= rp.inlier_sigma * _face_sigma(rb[side_b], sig, side_b))
+    # a face that ends inside the band (a bevel's convex edge with the plate's top) is rounded there as
+    # at the corner: its last few sigma would tilt the plane too
+    on_a &= _short_of_far_edge(da, on_a, margin, rp.band_m)
+    on_b &= _short_of_far_edge(db, on_b, margin, rp.band_m)
+    return on_a, on_b
 
 
 def _root_line(q: FloatArray, sig: FloatArray, line0: FloatArray, u: FloatArray,
