@@ -37,7 +37,7 @@ import numpy as np
 
 from cell.pools import ONE_THREAD_VARS, one_thread_children
 
-ZOO_VERSION = 3  # bump when the generator or renderer changes what a (family, seed) draws
+ZOO_VERSION = 4  # bump when the generator or renderer changes what a (family, seed) draws
 COVER_FOUND = 0.5
 PASS_RMSE_MM = 0.3
 PASS_MAX_MM = 1.0

@@ -291,6 +291,11 @@ class StereoSensor:
     p_speckle: float = 0.002
 
 
+def second_eye(X_world_camera: FloatArray, sensor: StereoSensor) -> FloatArray:
+    """Where a stereo sensor's second camera sits (world frame): ``baseline_m`` along the camera's x axis."""
+    return np.asarray(X_world_camera[:3, 3] + sensor.baseline_m * X_world_camera[:3, 0], dtype=np.float64)
+
+
 def _flying_pixels(depth: FloatArray, z: FloatArray, p_fly: float, rng: np.random.Generator) -> FloatArray:
     """A mix of foreground and background depth where the true depth jumps by more than 1 cm."""
     valid = np.isfinite(depth)
@@ -339,7 +344,7 @@ def _stereo_depth(
     disp = np.round(disp * sensor.subpixel) / sensor.subpixel
     z = np.where(valid & (disp > 0), fb / np.maximum(disp, 1e-9), np.nan)
     # stereo shadow: the second camera's ray to the surface point is blocked
-    eye2 = X_world_camera[:3, 3] + sensor.baseline_m * X_world_camera[:3, 0]
+    eye2 = second_eye(X_world_camera, sensor)
     flat = np.flatnonzero(valid.ravel())
     p = X_world_camera[:3, 3] + depth.ravel()[flat, None] * dirs_world[flat]
     vec = p - eye2
@@ -412,9 +417,16 @@ class GroundTruthRules:
 
 
 def _visible_runs(
-    scene: Scene, caster: _Raycaster, X_world_camera: FloatArray, seam_index: int, rules: GroundTruthRules
+    scene: Scene,
+    caster: _Raycaster,
+    X_world_camera: FloatArray,
+    seam_index: int,
+    rules: GroundTruthRules,
+    also_from: tuple[FloatArray, ...] = (),
 ) -> list[tuple[FloatArray, FloatArray, FloatArray]]:
-    """Sampled points of a seam that the camera sees, split into runs, with both face normals."""
+    """Sampled points of a seam that the camera sees, split into runs, with both face normals. The probes
+    must also be unoccluded from each eye (world frame) in ``also_from``: a stereo sensor's second camera,
+    without which there is no depth."""
     seam = scene.seams[seam_index]
     cam = scene.camera
     pts, da, db = seam.sample(GT_STEP_M)
@@ -434,11 +446,11 @@ def _visible_runs(
         margin = 4.0
         inside = (uv[:, 0] >= margin) & (uv[:, 0] <= cam.width - 1 - margin)
         inside &= (uv[:, 1] >= margin) & (uv[:, 1] <= cam.height - 1 - margin)
-        vec = probe - eye
-        dist = np.linalg.norm(vec, axis=1)
-        ans = caster.cast(np.tile(eye, (len(probe), 1)), vec / dist[:, None])
-        unoccluded = ans["t_hit"] >= dist - 5e-4
-        ok &= in_front & inside & unoccluded
+        ok &= in_front & inside
+        for e in (eye, *also_from):
+            vec = probe - e
+            dist = np.linalg.norm(vec, axis=1)
+            ok &= caster.cast(np.tile(e, (len(probe), 1)), vec / dist[:, None])["t_hit"] >= dist - 5e-4
     view = (pts - eye) / np.linalg.norm(pts - eye, axis=1, keepdims=True)
     cos_max = np.cos(np.radians(rules.max_incidence_deg))
     ok &= (-(na * view).sum(axis=1) > cos_max) & (-(nb * view).sum(axis=1) > cos_max)
@@ -470,14 +482,17 @@ def visible_ground_truth(
     *,
     rules: GroundTruthRules | None = None,
     caster: _Raycaster | None = None,
+    sensor: StereoSensor | None = None,
 ) -> tuple[GroundTruthDetail, ...]:
-    """The scene's seams clipped to what a camera at ``X_world_camera`` sees (``rules``), as visible runs."""
+    """The scene's seams clipped to what a camera at ``X_world_camera`` sees (``rules``), as visible runs. With
+    a stereo ``sensor`` a seam must be seen by its second camera too: in its shadow there is no depth."""
     caster = caster or _Raycaster(scene)
     X_wc = np.asarray(X_world_camera, dtype=np.float64)
     X_cw = invert_X(X_wc)
+    also = () if sensor is None else (second_eye(X_wc, sensor),)
     gts: list[GroundTruthDetail] = []
     for si, seam in enumerate(scene.seams):
-        runs = _visible_runs(scene, caster, X_wc, si, rules or GroundTruthRules())
+        runs = _visible_runs(scene, caster, X_wc, si, rules or GroundTruthRules(), also)
         for k, (pts, na, nb) in enumerate(runs):
             if seam.kind == "linear":
                 keep = np.array([0, len(pts) - 1])
@@ -536,7 +551,7 @@ def render(
 
     # ground truth, clipped to what the camera sees
     X_cw = invert_X(X_wc)
-    gts = list(visible_ground_truth(scene, X_wc, rules=rules, caster=caster))
+    gts = list(visible_ground_truth(scene, X_wc, rules=rules, caster=caster, sensor=sensor))
 
     labels, surfaces, prompts = _face_prompts(scene, part_idx, face_idx, z)
 

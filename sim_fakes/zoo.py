@@ -429,7 +429,8 @@ def draw_capture(
 ) -> ZooCapture:
     """Draw, place the camera and render one zoo capture (deterministic in family and seed).
 
-    The camera is redrawn (up to 30 times) until at least one seam is visible under :data:`ZOO_RULES`.
+    The camera is redrawn (up to 30 times) until at least one seam is visible under :data:`ZOO_RULES` (to both
+    cameras of a stereo sensor).
     ``noise_free`` renders the same draw with exact depth (for tests of the truth).
     """
     scene, rng, n_clutter = draw_scene(family, seed)
@@ -446,7 +447,8 @@ def draw_capture(
         target[2] = rng.uniform(0.0, 0.5) * centre[2]
         eye = target + dist * np.array([np.cos(elev) * np.cos(az), np.cos(elev) * np.sin(az), np.sin(elev)])
         cam = CameraSetup(eye=tuple(eye), target=tuple(target), width=width, height=height, fx=fx, fy=fx)
-        if visible_ground_truth(replace(scene, camera=cam), look_at_X(eye, target), rules=ZOO_RULES):
+        if visible_ground_truth(replace(scene, camera=cam), look_at_X(eye, target), rules=ZOO_RULES,
+                                sensor=SENSORS[sensor]):  # fmt: skip
             break
     scene = replace(scene, camera=cam)
     noise_seed = int(rng.integers(2**31))

@@ -13,7 +13,7 @@ from perception.capture import JOINT_TYPES
 from perception.evaluate import point_to_polyline_distance
 from perception.transforms import invert_X, look_at_X, make_X, transform_points
 from sim_fakes.hull import box_corners
-from sim_fakes.render import GT_STEP_M, StereoSensor, render, visible_ground_truth
+from sim_fakes.render import GT_STEP_M, StereoSensor, render, second_eye, visible_ground_truth
 from sim_fakes.scenes import CYL_SIDE, CameraSetup, Part, Scene
 from sim_fakes.zoo import FAMILIES, SPLIT_BASE, ZOO_RULES, draw_capture, draw_scene, split_plan
 
@@ -122,6 +122,20 @@ def test_samples_seen_at_more_than_75_degrees_are_clipped_where_the_geometry_say
     assert ok.any() and not ok.all()
     expected = y[ok]
     np.testing.assert_allclose(sorted(gt.points_world[:, 1]), [expected.min(), expected.max()], atol=GT_STEP_M + 1e-6)
+
+
+def test_a_fillet_in_the_second_cameras_shadow_is_not_truth() -> None:
+    # the camera sees the web's -x fillet whole; with a 0.2 m baseline its second camera stands beyond the
+    # web's plane (x > 0.003) and the web hides the fillet from it: there is no depth there
+    scene = tee_scene(0.2, eye=(-0.15, -0.35, 0.30))
+    X_wc = scene.camera.X_world_camera
+    whole = [[-0.003, 0.1, 0.01], [-0.003, -0.1, 0.01]]
+    for sensor in (None, StereoSensor()):
+        (gt,) = visible_ground_truth(scene, X_wc, rules=ZOO_RULES, sensor=sensor)
+        np.testing.assert_allclose(gt.points_world, whole, atol=1e-12)
+    wide = StereoSensor(baseline_m=0.2)
+    assert second_eye(X_wc, wide)[0] > 0.003
+    assert visible_ground_truth(scene, X_wc, rules=ZOO_RULES, sensor=wide) == ()
 
 
 def block_scene(sensor_eye_height: float = 0.5) -> tuple[Scene, np.ndarray]:
