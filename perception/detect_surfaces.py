@@ -8,7 +8,7 @@ when given, say which surfaces are the workpiece (:mod:`perception.fine.workpiec
 seams.
 
     noise -> surfaces -> support -> adjacency -> workpiece -> folds, gaps, grooves     (work resolution)
-          -> refine -> inner gaps, steps -> merge -> view clip -> corners  (full resolution near the seams)
+          -> refine -> inner gaps, steps -> merge -> groove trace -> view clip -> corners  (full resolution)
 
 Each step is timed and counted in the result's ``timing_s`` (``step_<name>``) and ``info["counts"]``.
 """
@@ -165,6 +165,7 @@ def _full_resolution_steps(
     from perception.fine.merge import merge_collinear
     from perception.fine.refine import refine_seams
     from perception.fine.steps import step_seams
+    from perception.fine.trace import trace_grooves
     from perception.fine.visibility import clip_to_view
 
     noise_full = _full(noise, surf.factor)
@@ -190,6 +191,8 @@ def _full_resolution_steps(
         # a V-groove's opening between its plates' tops is not a butt gap beside it: the root is the seam
         grooves = [c for c in curves if c.joint == "v_groove"]
         curves = [c for c in curves if c.joint != "butt" or not over_groove(c, grooves)]
+    with log.step("trace"):
+        curves = trace_grooves(curves, organized, capture.intrinsics, noise_full, read=read)
     with log.step("view"):
         curves = clip_to_view(curves, surf, noise)
     with log.step("corners"):

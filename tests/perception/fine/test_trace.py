@@ -1,0 +1,104 @@
+"""Grooves traced along their cross-sections past where their bevels were segmented."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from perception.capture import CameraIntrinsics
+from perception.evaluate import point_to_polyline_distance
+from perception.fine.trace import TraceParams, trace_grooves
+from perception.fine.types import FloatArray, NoiseModel, SeamCurve
+
+from .scenes import rendered, work
+
+
+def _seed(a: FloatArray, b: FloatArray, na: FloatArray, nb: FloatArray, support: int = 100) -> SeamCurve:
+    """A straight V-groove seam from ``a`` to ``b`` with bevel normals ``na`` and ``nb``."""
+    return SeamCurve("linear", "v_groove", np.array([a, b]), np.tile(na, (2, 1)), np.tile(nb, (2, 1)), (0, 1),
+                     support, 1e-4)  # fmt: skip
+
+
+@pytest.mark.parametrize("noise", ["none", "stereo"])
+def test_a_stretch_of_a_straight_groove_is_traced_to_its_ends_and_no_further(noise: str) -> None:
+    """The middle 40 mm of a 200 mm groove, given exactly: the seam runs on along its own line to within two
+    slices (6 mm) of where the plates end, and never past them (the table beyond is no valley)."""
+    res = rendered("v_groove", noise)
+    (gt,) = res.ground_truth
+    g0, g1 = gt.points_camera[0], gt.points_camera[-1]
+    u = (g1 - g0) / np.linalg.norm(g1 - g0)
+    mid = 0.5 * (g0 + g1)
+    seed = _seed(mid - 0.02 * u, mid + 0.02 * u, gt.normal_a_camera[0], gt.normal_b_camera[0])
+    nm = work("v_groove", noise)[2]
+    (s,) = trace_grooves([seed], res.capture.points_camera(), res.capture.intrinsics, nm)
+    assert s.kind == "linear" and s.joint == "v_groove"
+    assert point_to_polyline_distance(s.points, gt.points_camera).max() < 1e-9  # on the seed's (exact) line
+    t = sorted(float((p - g0) @ u) for p in s.points)
+    length = float(np.linalg.norm(g1 - g0))
+    assert -0.0005 < t[0] < 0.006 and length - 0.006 < t[1] < length + 0.0005
+
+
+def _curved_groove(radius: float, depth: float, slope_deg: float, sigma: float, seed: int
+                   ) -> tuple[np.ndarray, CameraIntrinsics, FloatArray]:  # fmt: skip
+    """An organized cloud of a plate 0.5 m in front of the camera with a V-groove cut along a circle of
+    ``radius`` through the image centre (its sides sinking ``slope_deg`` below the plate, ``depth`` deep),
+    depth noise ``sigma``; with the camera and the groove's true bottom (dense points on the circle)."""
+    intr = CameraIntrinsics(640, 360, 460.0, 460.0, 319.5, 179.5)
+    v, u = np.mgrid[0:360, 0:640].astype(np.float64)
+    rx, ry = (u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy
+    centre = np.array([0.0, radius])  # the circle through (0, 0) in the plate's plane
+    k = np.tan(np.radians(slope_deg))
+    z = np.full(u.shape, 0.5)
+    for _ in range(20):  # the ray meets the surface z = 0.5 + max(depth - k d, 0), d: distance to the circle
+        d = np.abs(np.hypot(rx * z - centre[0], ry * z - centre[1]) - radius)
+        z = 0.5 + np.maximum(depth - k * d, 0.0)
+    z += np.random.default_rng(seed).normal(0.0, sigma, z.shape)
+    organized = np.stack([rx * z, ry * z, z], axis=-1).astype(np.float32)
+    ang = np.linspace(-np.pi / 2 - 0.9, -np.pi / 2 + 0.9, 2000)
+    bottom = np.column_stack([centre[0] + radius * np.cos(ang), centre[1] + radius * np.sin(ang),
+                              np.full_like(ang, 0.5 + depth)])  # fmt: skip
+    return organized, intr, bottom
+
+
+def test_a_curved_groove_is_traced_round_its_bend_as_one_curved_seam() -> None:
+    """A 10 mm straight stretch at the bottom of an 80 mm radius groove (120 degrees included, 4 mm deep,
+    0.2 mm noise): traced both ways round the arc, within half a millimetre of the true bottom."""
+    organized, intr, bottom = _curved_groove(0.08, 0.004, 30.0, 0.0002, 0)
+    s30 = np.sin(np.radians(30.0))
+    c30 = np.cos(np.radians(30.0))
+    # at (0, 0) the groove runs along x; its bevels face the camera (-z), tilted 30 degrees across it (y)
+    na, nb = np.array([0.0, s30, -c30]), np.array([0.0, -s30, -c30])
+    seed = _seed(np.array([-0.005, 0.0, 0.504]), np.array([0.005, 0.0, 0.504]), na, nb)
+    nm = NoiseModel(sigma_1m_m=0.0002 / 0.25, floor_m=1e-5, pixel_angle_rad=1.0 / 460.0)
+    (s,) = trace_grooves([seed], organized, intr, nm)
+    assert s.kind == "curved"
+    assert point_to_polyline_distance(s.points, bottom).max() < 5e-4
+    reach = s.points[:, 0].max() - s.points[:, 0].min()
+    assert reach > 0.08  # round the bend: the image holds the arc over about 100 mm
+
+
+def test_two_stretches_of_one_groove_become_one_seam_and_a_better_one_is_not_displaced() -> None:
+    res = rendered("v_groove", "stereo")
+    (gt,) = res.ground_truth
+    g0, g1 = gt.points_camera[0], gt.points_camera[-1]
+    u = (g1 - g0) / np.linalg.norm(g1 - g0)
+    na, nb = gt.normal_a_camera[0], gt.normal_b_camera[0]
+    nm = work("v_groove", "stereo")[2]
+    # a well supported exact stretch, and a poorly supported one 2 mm off the root further along
+    good = _seed(g0 + 0.05 * u, g0 + 0.08 * u, na, nb, support=500)
+    off = np.cross(u, na + nb)
+    off /= np.linalg.norm(off)
+    poor = _seed(g0 + 0.12 * u + 0.002 * off, g0 + 0.15 * u + 0.002 * off, na, nb, support=40)
+    out = trace_grooves([poor, good], res.capture.points_camera(), res.capture.intrinsics, nm)
+    assert len(out) == 1 and out[0].support == 500
+    assert point_to_polyline_distance(out[0].points, gt.points_camera).max() < 1e-9
+
+
+def test_a_seam_whose_last_slice_is_no_valley_is_left_as_it_is() -> None:
+    """A seam laid on a flat plate: its own last slice is no valley, so nothing is traced from it."""
+    organized, intr, _ = _curved_groove(0.08, 0.0, 30.0, 0.0002, 1)  # a flat plate: no groove at all
+    na, nb = np.array([0.0, 0.5, -0.866]), np.array([0.0, -0.5, -0.866])
+    seed = _seed(np.array([-0.005, 0.0, 0.5]), np.array([0.005, 0.0, 0.5]), na, nb)
+    nm = NoiseModel(sigma_1m_m=0.0008, floor_m=1e-5, pixel_angle_rad=1.0 / 460.0)
+    (s,) = trace_grooves([seed], organized, intr, nm, params=TraceParams())
+    assert s is seed
