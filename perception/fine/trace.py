@@ -38,6 +38,7 @@ class TraceParams:
     min_side_points: int = 4
     max_misses: int = 2  # the groove ends at this many slices in a row that are not a valley
     max_length_m: float = 0.30  # traced at most this far from each end
+    min_length_m: float = 0.010  # what is left of a groove beside a better one is kept from this long
     chunk_m: float = 0.060  # points are read this far ahead at a time
 
 
@@ -65,7 +66,8 @@ def trace_grooves(seams: list[SeamCurve], full: NDArray[np.float32], intr: Camer
 def _join_overlapping(seams: list[SeamCurve], noise: NoiseModel, tp: TraceParams) -> list[SeamCurve]:
     """Grooves traced into each other become one. A groove has one bottom across a slice's width: a groove
     lying mostly within that width of a better supported one is the same groove, and is dropped; one that
-    meets it within the noise at one of its ends lends it what lies beyond."""
+    meets it within the noise at one of its ends lends it what lies beyond; one whose end runs on beside it
+    loses that stretch."""
     # the best supported first: a groove fitted on a few points of a bevel, traced, would displace a better one
     grooves = sorted((s for s in seams if s.joint == "v_groove"), key=lambda s: (-s.support, -_length(s.points)))
     kept: list[SeamCurve] = []
@@ -83,9 +85,20 @@ def _join_overlapping(seams: list[SeamCurve], noise: NoiseModel, tp: TraceParams
                 break
             if beside.mean() >= 0.5:
                 break
+            if beside[0] or beside[-1]:  # an end runs on beside it: that stretch is welded once, by the better
+                pb = pb[~beside]
         else:
-            kept.append(b)
+            if len(pb) >= 2 and _length(pb) >= tp.min_length_m:
+                kept.append(b if len(pb) == len(_resample(b.points, 0.001)) else _curved(b, pb))
     return [s for s in seams if s.joint != "v_groove"] + kept
+
+
+def _curved(s: SeamCurve, pts: FloatArray) -> SeamCurve:
+    """Seam ``s`` as a curved seam through ``pts``, its bevel normals carried along."""
+    pts = pts[:: max(1, len(pts) // 200)] if len(pts) > 400 else pts
+    n = len(pts)
+    return replace(s, kind="curved", points=pts, normals_a=np.tile(s.normals_a[0], (n, 1)),
+                   normals_b=np.tile(s.normals_b[0], (n, 1)))  # fmt: skip
 
 
 def _extended(a: SeamCurve, extra: FloatArray, noise: NoiseModel) -> SeamCurve:
@@ -100,10 +113,7 @@ def _extended(a: SeamCurve, extra: FloatArray, noise: NoiseModel) -> SeamCurve:
     else:
         tail = extra if np.linalg.norm(first - pts[-1]) <= np.linalg.norm(last - pts[-1]) else extra[::-1]
         joined = np.vstack([pts, tail])
-    joined = joined[:: max(1, len(joined) // 200)] if len(joined) > 400 else joined
-    n = len(joined)
-    return replace(a, kind="curved", points=joined, normals_a=np.tile(a.normals_a[0], (n, 1)),
-                   normals_b=np.tile(a.normals_b[0], (n, 1)))  # fmt: skip
+    return _curved(a, joined)
 
 
 def _smoothed(bottoms: FloatArray) -> tuple[FloatArray, float]:

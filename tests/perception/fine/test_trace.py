@@ -102,3 +102,29 @@ def test_a_seam_whose_last_slice_is_no_valley_is_left_as_it_is() -> None:
     nm = NoiseModel(sigma_1m_m=0.0008, floor_m=1e-5, pixel_angle_rad=1.0 / 460.0)
     (s,) = trace_grooves([seed], organized, intr, nm, params=TraceParams())
     assert s is seed
+
+
+def test_a_stretch_running_on_beside_a_better_one_loses_what_lies_beside_it() -> None:
+    """Untraced (no reach), a poorly supported stretch 6 mm beside a better one overlaps its end by 10 mm: that
+    stretch is welded once, by the better one; the rest of the poor one stays, from where it is 8 mm (the
+    window's half-width) from the better one's end."""
+    res = rendered("v_groove", "stereo")
+    (gt,) = res.ground_truth
+    g0, g1 = gt.points_camera[0], gt.points_camera[-1]
+    u = (g1 - g0) / np.linalg.norm(g1 - g0)
+    na, nb = gt.normal_a_camera[0], gt.normal_b_camera[0]
+    off = np.cross(u, na + nb)
+    off /= np.linalg.norm(off)
+    good = _seed(g0 + 0.05 * u, g0 + 0.08 * u, na, nb, support=500)
+    poor = _seed(g0 + 0.07 * u + 0.006 * off, g0 + 0.11 * u + 0.006 * off, na, nb, support=40)
+    nm = work("v_groove", "stereo")[2]
+    assert 3.0 * nm.sigma_m(g0[2]) + 2.0 * nm.spacing_m(g0[2]) < 0.006  # not within the noise: not one line
+    out = trace_grooves([poor, good], res.capture.points_camera(), res.capture.intrinsics, nm,
+                        params=TraceParams(max_length_m=0.0))  # fmt: skip
+    assert len(out) == 2
+    kept_good = next(s for s in out if s.support == 500)
+    kept_poor = next(s for s in out if s.support == 40)
+    np.testing.assert_array_equal(kept_good.points, good.points)
+    t = (kept_poor.points - g0) @ u
+    expected_start = 0.08 + np.sqrt(0.008**2 - 0.006**2)
+    assert t.min() == pytest.approx(expected_start, abs=0.0011) and t.max() == pytest.approx(0.11, abs=1e-9)
