@@ -29,6 +29,7 @@ COPY_SIGMA = 1.5  # see _others_residual
 ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
 END_BIN_POINTS = 4.0  # an end bin is widened until it is expected to hold this many points of a face
 TUKEY_C = 4.685  # Tukey's biweight constant: 95% efficiency on normal noise
+TUKEY_SETTLED_M = 1e-7  # the biweight's iterations stop when the plane moves less than this at the farthest point
 
 
 @dataclass(frozen=True)
@@ -396,6 +397,7 @@ def _robust_plane_fit(p: FloatArray, weights: FloatArray, *, iterations: int = 8
     n, off, _ = fit_plane_rows(p, rows, weights, work=work)
     r, a, w = np.empty(len(p)), np.empty(len(p)), np.empty(len(p))
     cut = np.empty(len(p), dtype=bool)
+    reach = float(np.sqrt(np.max(rows[0] ** 2 + rows[1] ** 2 + rows[2] ** 2)))  # the farthest point's range
     for _ in range(iterations):
         np.matmul(p, n, out=r)
         r += off
@@ -411,7 +413,11 @@ def _robust_plane_fit(p: FloatArray, weights: FloatArray, *, iterations: int = 8
         w[cut] = 0.0
         if w.sum() <= 0.0 or np.count_nonzero(w) < 10:
             break
-        n, off, _ = fit_plane_rows(p, rows, w, work=work)
+        n_new, off_new, _ = fit_plane_rows(p, rows, w, work=work)
+        moved = abs(off_new - off) + float(np.linalg.norm(n_new - n)) * reach
+        n, off = n_new, off_new
+        if moved < TUKEY_SETTLED_M:
+            break  # settled: the next weights would move it less still
     return n, off
 
 

@@ -186,3 +186,24 @@ def test_a_seam_ends_where_its_faces_segmented_pixels_end_not_where_blurred_supp
     np.testing.assert_allclose(out.points, [[0.0, 0.0, 0.5], [0.040 + 0.5 * spacing, 0.0, 0.5]], atol=1e-12)
     # a face with no segmented pixels near the seam leaves it as it was (nothing to say where it ends)
     assert _within_segmentation(seam, (face0, np.zeros(len(x0), np.int32)), nm, 2, RefineParams()) is seam
+
+
+def test_the_biweight_stops_when_settled_within_a_tenth_of_a_micrometre_of_its_full_run(monkeypatch) -> None:
+    """A plate's points (0.5 mm noise) with a tenth of them from another face 5 mm off: the biweight stops once
+    the plane moves less than TUKEY_SETTLED_M at the farthest point, and lands within that of the plane all
+    eight iterations give; both within 0.05 mm of the true plane (z = 0.6 m)."""
+    import perception.fine.refine as refine_module
+
+    rng = np.random.default_rng(3)
+    p = np.column_stack([rng.uniform(-0.05, 0.05, 4000), rng.uniform(-0.05, 0.05, 4000), np.full(4000, 0.6)])
+    p[:, 2] += rng.normal(0.0, 0.0005, 4000)
+    p[:400, 2] -= 0.005
+    w = np.ones(len(p))
+    n_settled, off_settled = refine_module._robust_plane_fit(p, w)
+    settled = refine_module.TUKEY_SETTLED_M
+    monkeypatch.setattr(refine_module, "TUKEY_SETTLED_M", 0.0)
+    n_full, off_full = refine_module._robust_plane_fit(p, w)
+    reach = float(np.linalg.norm(p, axis=1).max())
+    assert abs(off_settled - off_full) + np.linalg.norm(n_settled - n_full) * reach < 2 * settled
+    for n, off in ((n_settled, off_settled), (n_full, off_full)):
+        assert abs(n[2]) > np.cos(np.radians(0.1)) and abs(abs(off) - 0.6) < 5e-5
