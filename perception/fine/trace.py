@@ -5,21 +5,22 @@ shallow, a U-groove is rounded, a plate is bent. The segmentation keeps a bevel 
 is flat, so the fold between the bevels covers a stretch of the groove, not all of it. From each end of such
 a seam the groove is followed slice by slice: in each slice a few millimetres long, the points across the
 groove are fitted with a hinge (two lines meeting at the bottom, their vertex free within a pixel or two of
-the prediction). The groove goes on while the slice is a valley as concave as the seam's own bevels say it
-should be (at least half their turn, and never less than 15 degrees) and the hinge fits within the noise;
-it ends at the first two slices in a row that are not. A seam that then bends beyond the noise becomes a
-curved seam through the slices' vertices.
+the prediction). The groove goes on while the slice is a valley whose sides rise like the seam's own bevels
+(each at 0.35 to 1 / 0.35 of their half-turn, together at least 15 degrees) and the hinge fits within the
+noise; it ends at the first two slices in a row that are not. The hinge's offset from the root is measured
+on the seam's own last slice. A seam that then bends beyond the noise becomes a curved seam through the
+slices' vertices.
 """
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
+from perception.evaluate import point_to_polyline_distance, resample_polyline
 from perception.fine.refine import near_points
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve
 from perception.fits import median
@@ -72,10 +73,11 @@ def _join_overlapping(seams: list[SeamCurve], noise: NoiseModel, tp: TraceParams
     grooves = sorted((s for s in seams if s.joint == "v_groove"), key=lambda s: (-s.support, -_length(s.points)))
     kept: list[SeamCurve] = []
     for b in grooves:
-        pb = _resample(b.points, 0.001)
+        pb = resample_polyline(b.points, 0.001)
+        trimmed = False
         for i, a in enumerate(kept):
             z = float(median(a.points[:, 2]))
-            d = _distance_to(pb, a.points)
+            d = point_to_polyline_distance(pb, a.points)
             near = d <= 3.0 * float(noise.sigma_m(z)) + 2.0 * float(noise.spacing_m(z))
             beside = d <= tp.half_width_m
             if beside.mean() >= 0.9:
@@ -86,10 +88,10 @@ def _join_overlapping(seams: list[SeamCurve], noise: NoiseModel, tp: TraceParams
             if beside.mean() >= 0.5:
                 break
             if beside[0] or beside[-1]:  # an end runs on beside it: that stretch is welded once, by the better
-                pb = pb[~beside]
+                pb, trimmed = pb[~beside], True
         else:
             if len(pb) >= 2 and _length(pb) >= tp.min_length_m:
-                kept.append(b if len(pb) == len(_resample(b.points, 0.001)) else _curved(b, pb))
+                kept.append(_curved(b, pb) if trimmed else b)
     return [s for s in seams if s.joint != "v_groove"] + kept
 
 
@@ -103,7 +105,7 @@ def _curved(s: SeamCurve, pts: FloatArray) -> SeamCurve:
 
 def _extended(a: SeamCurve, extra: FloatArray, noise: NoiseModel) -> SeamCurve:
     """Seam ``a`` with the points ``extra`` (beyond one of its ends, in order) added at that end."""
-    pts = _resample(a.points, 0.001)
+    pts = resample_polyline(a.points, 0.001)
     first, last = extra[0], extra[-1]
     if min(np.linalg.norm(first - pts[0]), np.linalg.norm(last - pts[0])) < min(
         np.linalg.norm(first - pts[-1]), np.linalg.norm(last - pts[-1])
@@ -136,26 +138,6 @@ def _smoothed(bottoms: FloatArray) -> tuple[FloatArray, float]:
 
 def _length(p: FloatArray) -> float:
     return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
-
-
-def _resample(p: FloatArray, step_m: float) -> FloatArray:
-    """Points every ``step_m`` along the polyline ``p`` (its ends included)."""
-    seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    if cum[-1] <= 0.0:
-        return p[:1].copy()
-    t = np.linspace(0.0, cum[-1], max(2, int(np.ceil(cum[-1] / step_m)) + 1))
-    return np.column_stack([np.interp(t, cum, p[:, k]) for k in range(3)])
-
-
-def _distance_to(q: FloatArray, line: FloatArray) -> FloatArray:
-    """Per point of ``q``: its distance to the polyline ``line``."""
-    best = np.full(len(q), np.inf)
-    for a, b in itertools.pairwise(line):
-        ab = b - a
-        t = np.clip((q - a) @ ab / max(float(ab @ ab), 1e-18), 0.0, 1.0)
-        best = np.minimum(best, np.linalg.norm(q - (a + np.outer(t, ab)), axis=1))
-    return best
 
 
 def _traced(s: SeamCurve, full: NDArray[np.float32], intr: CameraIntrinsics, noise: NoiseModel, tp: TraceParams,
@@ -260,18 +242,17 @@ def _slice_bottom(q: FloatArray, f: _Frame, noise: NoiseModel, turn: float,
                   tp: TraceParams) -> FloatArray | None:  # fmt: skip
     """The bottom of the groove in one slice (a hinge fitted to the points' height against their offset
     across), or None when the slice is not the seam's valley: too few points in a half of it or on a side of
-    the bottom, a side not sloping
-    like a bevel of the seam's (each rises at between ``turn_share`` and 1 / ``turn_share`` times half the
-    seam's ``turn``: a plate's end face beside the table beyond the groove's end is a valley too), or a
-    hinge that does not fit within the noise."""
+    the bottom, a side not sloping like a bevel of the seam's (each rises at between ``turn_share`` and
+    1 / ``turn_share`` times half the seam's ``turn``: a plate's end face beside the table beyond the
+    groove's end is a valley too), or a hinge that does not fit within the noise."""
     d = q - f.centre
     t, s, h = d @ f.along, d @ f.across, d @ f.up
     m = (np.abs(t) <= 0.5 * tp.slice_m) & (np.abs(s) <= tp.half_width_m)
     if min(int((m & (t < 0.0)).sum()), int((m & (t >= 0.0)).sum())) < tp.min_side_points:
         return None  # both halves of the slice hold the groove: past its end only the near half would
     s, h = s[m], h[m]
-    sig = float(noise.sigma_m(float(median(q[m][:, 2]))))
-    spacing = float(noise.spacing_m(float(median(q[m][:, 2]))))
+    z = float(median(q[m][:, 2]))
+    sig, spacing = float(noise.sigma_m(z)), float(noise.spacing_m(z))
     best = _hinge(s, h, np.arange(-2.0 * spacing, 2.0 * spacing + 1e-12, 0.25 * spacing), tp.min_side_points)
     if best is None:
         return None
@@ -324,6 +305,4 @@ def _as_seam(s: SeamCurve, back: FloatArray, ahead: FloatArray, noise: NoiseMode
     if float(np.max(np.linalg.norm(off, axis=1))) <= sig:
         t_all = np.concatenate([t, [0.0, float((p1 - p0) @ u)]])
         return replace(s, points=np.array([p0 + t_all.min() * u, p0 + t_all.max() * u]))
-    n = len(pts)
-    return replace(s, kind="curved", points=pts, normals_a=np.tile(s.normals_a[0], (n, 1)),
-                   normals_b=np.tile(s.normals_b[0], (n, 1)))  # fmt: skip
+    return _curved(s, pts)
