@@ -188,13 +188,14 @@ def _full_resolution_steps(
         curves += [c for c in steps if c.joint != "lap" and not _duplicates(c, curves)]
     with log.step("merge"):
         curves = merge_collinear(curves, organized, capture.intrinsics, noise_full)
-        # a V-groove's opening between its plates' tops is not a butt gap beside it: the root is the seam
-        grooves = [c for c in curves if c.joint == "v_groove"]
-        curves = [c for c in curves if c.joint != "butt" or not over_groove(c, grooves)]
     with log.step("trace"):
         curves = trace_grooves(curves, organized, capture.intrinsics, noise_full, read=read)
     with log.step("view"):
         curves = clip_to_view(curves, surf, noise)
+        # a V-groove's opening between its plates' tops is not a butt gap beside it: the root is the seam. Only
+        # a groove that is seen counts (a butt gap's own walls can pass for a groove the camera cannot see into)
+        grooves = [c for c in curves if c.joint == "v_groove"]
+        curves = [c for c in curves if c.joint != "butt" or not over_groove(c, grooves)]
     with log.step("corners"):
         curves = join_corners(curves, noise_full)
     used = int(read.sum())
