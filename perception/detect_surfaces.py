@@ -176,7 +176,8 @@ def _full_resolution_steps(
     with log.step("refine"):
         curves, _ = refine_seams(curves, organized, capture.intrinsics, surf, noise_full, read=read)
     with log.step("inner_gaps"):
-        curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=skip)
+        curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=skip,
+                                  color_rgb=capture.color_rgb)  # fmt: skip
     with log.step("steps"):
         steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=skip,
                            read=read)  # fmt: skip

@@ -1,5 +1,9 @@
 """Butt gaps: two coplanar surfaces whose facing boundaries run parallel across a narrow strip with nothing on
-their plane in it. The seam is the gap's centre line on the plates' top surface, with its width."""
+their plane in it. The seam is the gap's centre line on the plates' top surface, with its width.
+
+A gap too narrow to split its plates at the work resolution is a line of holes inside one plane at full
+resolution: pixels with no depth or depth behind the plane, or, in the colour image, on a thin line of
+shadow (a gap narrower than the depth sensor resolves still shows as one)."""
 
 from __future__ import annotations
 
@@ -171,16 +175,21 @@ def inner_gap_seams(
     *,
     support: frozenset[int],
     params: InnerGapParams | None = None,
+    color_rgb: NDArray[np.uint8] | None = None,
 ) -> list[SeamCurve]:
     """Butt gaps too narrow to split a plate at the work resolution: inside one plane's outline, at full
     resolution, a long thin line of pixels with no depth or depth behind the plane, with the plane on both
-    sides of it all along."""
+    sides of it all along. With the (H, W, 3) ``color_rgb`` registered to the depth, a pixel on a dark line
+    (:func:`dark_line`) counts as seeing into the gap too: a gap narrower than the depth sensor resolves is
+    still a line of shadow in the image."""
+    import cv2
     from scipy import ndimage
 
     gp = params or InnerGapParams()
     H, W = full.shape[:2]
     boxes = ndimage.find_objects(surfaces.labels + 1)  # each label's box at the work resolution, found once
     out: list[SeamCurve] = []
+    response: NDArray[np.int16] | None = None
     for s in surfaces.surfaces:
         if s.kind != "plane" or s.label in support or s.label >= len(boxes) or boxes[s.label] is None:
             continue
@@ -195,23 +204,79 @@ def inner_gap_seams(
         res = np.einsum("ik,k->i", np.nan_to_num(pts), s.normal) + s.offset
         sig = noise_full.sigma_m(np.where(np.isfinite(z), z, s.z_m))
         hole = inner[fy, fx] & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
-        if hole.sum() < 15:
-            continue
         on_plane = pts[np.isfinite(z) & (np.abs(res) <= 4.0 * sig)]
-        # the hole pixels' rays (only theirs: the whole image's would cost more than the rest of the step)
-        uu, vv = (fx[hole] + x0).astype(np.float64), (fy[hole] + y0).astype(np.float64)
-        r = np.stack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy, np.ones_like(uu)], axis=1)
-        g_all = r * (-s.offset / (r @ s.normal))[:, None]  # the hole pixels' rays met with the plate's plane
-        lines = _gap_lines(g_all, s.normal, gp, rng=np.random.default_rng(0))
-        if not lines:
-            continue
         win = full[y0:y1, x0:x1]
-        seen = win[np.isfinite(win[..., 2])].astype(np.float64)  # every point in the window, for the strip test
-        for g, u in lines:
-            seam = _gap_between(g, u, s, on_plane, seen, noise_full, gp, all_holes=g_all)
-            if seam is not None:
-                out.append(seam)
+        px = (fx + x0, fy + y0)
+        found = _gaps_from_holes(hole, px, intr, s, on_plane, win, noise_full, gp)
+        if not found and color_rgb is not None:
+            # the depth shows no gap here: one narrower than the sensor resolves may still show as shadow (the
+            # depth places a gap it resolves better: seen obliquely, the shadow takes in the far edge's face)
+            if response is None:
+                response = dark_response(color_rgb)  # once, and only for a capture with a plane to look in
+            # a gap has its plate on both sides: a dark line along the outline (a fold's shadow) is not one
+            deep = cv2.erode(filled.astype(np.uint8), np.ones((2 * DARK_MARGIN_PX + 1,) * 2, np.uint8)).astype(bool)
+            dark = deep[fy, fx] & dark_line(response[y0:y1, x0:x1], filled)[fy, fx]
+            if (dark & ~hole).sum() >= 15:
+                found = _gaps_from_holes(hole | dark, px, intr, s, on_plane, win, noise_full, gp)
+        out += found
     return out
+
+
+def _gaps_from_holes(hole: NDArray[np.bool_], px: tuple[NDArray[np.int64], NDArray[np.int64]],
+                     intr: CameraIntrinsics, s: Surface, on_plane: FloatArray, win: NDArray[np.float32],
+                     noise_full: NoiseModel, gp: InnerGapParams) -> list[SeamCurve]:  # fmt: skip
+    """The butt seams along the lines of ``hole`` pixels (of the plane's outline, at pixel columns and rows
+    ``px``) on plane ``s``; ``on_plane``: its points, ``win``: the full-resolution window it lies in."""
+    if hole.sum() < 15:
+        return []
+    # the hole pixels' rays (only theirs: the whole image's would cost more than the rest of the step)
+    uu, vv = px[0][hole].astype(np.float64), px[1][hole].astype(np.float64)
+    r = np.stack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy, np.ones_like(uu)], axis=1)
+    g_all = r * (-s.offset / (r @ s.normal))[:, None]  # the hole pixels' rays met with the plate's plane
+    lines = _gap_lines(g_all, s.normal, gp, rng=np.random.default_rng(0))
+    if not lines:
+        return []
+    seen = win[np.isfinite(win[..., 2])].astype(np.float64)  # every point in the window, for the strip test
+    out = []
+    for g, u in lines:
+        seam = _gap_between(g, u, s, on_plane, seen, noise_full, gp, all_holes=g_all)
+        if seam is not None:
+            out.append(seam)
+    return out
+
+
+DARK_SIGMA = 6.0  # a dark line's pixel is darker than both sides by this many sigmas of the plate's own response
+DARK_REACH_PX = 2  # the sides are this many pixels away (a line a few pixels wide, blurred by the optics)
+DARK_MARGIN_PX = 4  # ... and lies this far inside its plate's outline at least
+GREY_FLOOR = 0.5  # grey levels: an 8-bit image's rounding alone spreads the response by about this much
+
+
+def dark_response(color_rgb: NDArray[np.uint8]) -> NDArray[np.int16]:
+    """How much darker (in grey levels of luma) each pixel of (H, W, 3) ``color_rgb`` is than the pixels
+    :data:`DARK_REACH_PX` away on both sides, in the direction (row, column or a diagonal) where that is most.
+    A thin dark line stands out in the direction across it; a colour edge between two plates is darker on
+    one side only."""
+    import cv2
+
+    grey = cv2.cvtColor(np.ascontiguousarray(color_rgb, dtype=np.uint8), cv2.COLOR_RGB2GRAY)
+    k = DARK_REACH_PX
+    resp = np.full(grey.shape, np.iinfo(np.int16).min, dtype=np.int16)
+    for dy, dx in ((0, k), (k, 0), (k, k), (k, -k)):
+        ker = np.zeros((2 * k + 1, 2 * k + 1), np.uint8)
+        ker[k + dy, k + dx] = ker[k - dy, k - dx] = 1
+        sides = cv2.erode(grey, ker, borderType=cv2.BORDER_REPLICATE)  # the darker of the two sides
+        np.maximum(resp, sides.astype(np.int16) - grey, out=resp)
+    return resp
+
+
+def dark_line(response: NDArray[np.int16], mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The pixels of ``mask`` on a thin dark line: a :func:`dark_response` over :data:`DARK_SIGMA` times its
+    robust spread over ``mask`` (the plate's own shading and noise)."""
+    r = response[mask]
+    if r.size < 100:
+        return np.zeros(mask.shape, dtype=bool)
+    spread = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    return mask & (response > DARK_SIGMA * max(spread, GREY_FLOOR))
 
 
 def _plane_window(surfaces: SurfaceSet, label: int, box: tuple[slice, slice], shape: tuple[int, int],

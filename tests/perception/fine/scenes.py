@@ -110,6 +110,7 @@ def v_groove(*, gap: float = 0.0, root: float = 0.0, near: bool = False) -> Scen
 def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
     sc = {"tee": tee, "pipe": pipe, "thin_pipe_far": lambda: pipe(0.015, view_scale=1.8), "butt": butt,
           "butt_oblique": lambda: butt(0.0015, eye=(-0.26, -0.12, 0.30)), "butt_fine": lambda: butt(0.0006),
+          "butt_far": lambda: butt(0.0008, eye=(-0.16, -0.40, 0.51)),
           "wall": wall,
           "lap": lap, "lap_behind": lambda: lap(behind=True), "v_groove": v_groove,
           "v_groove_open": lambda: v_groove(gap=0.0016, root=0.001, near=True)}[name]()  # fmt: skip

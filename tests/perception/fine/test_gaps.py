@@ -7,7 +7,7 @@ import pytest
 
 from perception.evaluate import point_to_polyline_distance
 from perception.fine.adjacency import adjacent_pairs
-from perception.fine.gaps import gap_seams, inner_gap_seams
+from perception.fine.gaps import dark_line, dark_response, gap_seams, inner_gap_seams
 from perception.fine.support import find_support
 
 from .scenes import rendered, work
@@ -187,3 +187,36 @@ def test_a_butt_over_a_v_grooves_root_is_its_opening_and_one_beside_it_is_not() 
     assert not over_groove(butt(0.0, 0.0, 0.12, 0.3), [root])  # past the groove's end
     assert not over_groove(butt(-0.08, 0.08, 0.0, 0.0), [root])  # across the groove
     assert not over_groove(butt(0.001, 0.001), [])
+
+
+def test_a_gap_the_depth_does_not_resolve_is_found_by_its_line_of_shadow_in_the_image() -> None:
+    """0.8 mm between the plates seen from 0.67 m, where the pixels lie 1.5 mm apart and the stereo noise
+    fills the gap's few deeper pixels: the depth alone holds no line of holes. The colour image shows the gap
+    as a line of shadow, darker than the plate on both sides of it."""
+    res = rendered("butt_far", "stereo")
+    p, _, nm, surf = work("butt_far", "stereo")
+    sup = find_support(p, surf, nm)
+    full, intr = res.capture.points_camera(), res.capture.intrinsics
+    assert inner_gap_seams(full, intr, surf, nm, support=sup) == []
+    (s,) = inner_gap_seams(full, intr, surf, nm, support=sup, color_rgb=res.capture.color_rgb)
+    (gt,) = res.ground_truth
+    samples = s.points[0] + np.linspace(0, 1, 50)[:, None] * (s.points[1] - s.points[0])
+    assert np.median(point_to_polyline_distance(samples, gt.points_camera)) < 2e-4
+    assert point_to_polyline_distance(s.points, gt.points_camera).max() < 5e-4
+    assert s.gap_m == pytest.approx(0.0008, abs=4e-4)
+
+
+def test_a_dark_line_is_darker_than_both_sides_and_a_colour_edge_is_not_one() -> None:
+    """A plate with noise of 2 grey levels, one half darker by 40 (another plate's colour), and a line one pixel
+    wide 30 levels darker than its side of the plate: the line is taken, the edge between the halves is not."""
+    rng = np.random.default_rng(0)
+    img = 150.0 + rng.normal(0.0, 2.0, (60, 80))
+    img[:, 40:] -= 40.0  # the colour edge at column 40
+    img[30, 5:35] -= 30.0  # the line along row 30, in the brighter half
+    rgb = np.repeat(np.clip(img, 0, 255).astype(np.uint8)[..., None], 3, axis=2)
+    mask = np.ones((60, 80), dtype=bool)
+    found = dark_line(dark_response(rgb), mask)
+    assert found[30, 7:33].all()
+    assert found.sum() - found[30].sum() <= 3  # off the line: a pixel or two of noise at most
+    assert not found[:, 38:42].any()
+    assert not dark_line(dark_response(rgb), np.zeros((60, 80), dtype=bool)).any()
