@@ -43,6 +43,7 @@ class RefineParams:
     end_bin_m: float = 0.001
     end_hole_m: float = 0.006
     end_slack_m: float = 0.006  # the ends may move this far beyond the coarse ones
+    min_piece_m: float = 0.012  # a stretch apart from the longest is a seam of its own from this long (a fold's)
 
 
 def near_points(full: NDArray[np.float32], intr: CameraIntrinsics, curve: FloatArray, band_m: float, *,
@@ -146,11 +147,12 @@ def refine_seams(
         elif s.kind == "linear" and A.kind == "plane" and B.kind == "plane":
             others = _others_residual(q, px, surfaces, s.surfaces, noise_full)
             beyond = _face_points(full, intr, surfaces, s.points, rp.face_reach_m)
-            r = _refine_line(s, q, others, A, B, noise_full, rp, beyond=beyond, weight_beyond=float(surfaces.factor**2))
-            if r is not s:
+            pieces = _refine_line(s, q, others, A, B, noise_full, rp, beyond=beyond,
+                                  weight_beyond=float(surfaces.factor**2))  # fmt: skip
+            if pieces[0] is not s:
                 segmented = _labelled_points(full, intr, surfaces, s.points, rp.end_slack_m + rp.band_m)
-                r = _within_segmentation(r, segmented, noise_full, surfaces.factor, rp)
-            out.append(r)
+                pieces = [_within_segmentation(r, segmented, noise_full, surfaces.factor, rp) for r in pieces]
+            out += pieces
         elif s.kind == "curved":
             out.append(_refine_ring(s, q, A, B, noise_full, rp))
         else:
@@ -240,19 +242,21 @@ def _within_segmentation(s: SeamCurve, segmented: tuple[FloatArray, NDArray[np.i
 
 def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B: Surface, noise: NoiseModel,
                  rp: RefineParams, *, beyond: tuple[FloatArray, NDArray[np.int32]] | None = None,
-                 weight_beyond: float = 1.0) -> SeamCurve:  # fmt: skip
-    """The seam of planes A and B refitted on the points ``q`` near it and on ``beyond`` (labelled, weighted)."""
+                 weight_beyond: float = 1.0) -> list[SeamCurve]:  # fmt: skip
+    """The seam of planes A and B refitted on the points ``q`` near it and on ``beyond`` (labelled, weighted):
+    one seam for each stretch where both faces are there (a gusset standing across a fold parts it), the
+    longest first; ``[s]`` itself when it cannot be refitted."""
     p0, p1 = s.points[0], s.points[-1]
     length = float(np.linalg.norm(p1 - p0))
     u = (p1 - p0) / length
     if len(q) < 20:
-        return s
+        return [s]
     d = q - p0
     t = d @ u
     inside = (t >= -0.002) & (t <= length + 0.002)
     q, t, others = q[inside], t[inside], others[inside]
     if len(q) < 20:
-        return s
+        return [s]
     far, far_lab = (np.zeros((0, 3)), np.zeros(0, dtype=np.int32)) if beyond is None else beyond
     sig_far = noise.sigma_m(far[:, 2])
     far_groups = [(int(k), np.flatnonzero(far_lab == k)) for k in np.unique(far_lab)]  # per surface, found once
@@ -267,7 +271,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     for _ in range(rp.iterations):
         on_a, on_b = _fit_sets(q, others, (a, b), line0, u, (va, vb), sig, margin, rp)
         if on_a.sum() < 10 or on_b.sum() < 10:
-            return s
+            return [s]
         fa, fb = _beyond_band(far, far_groups, sig_far, (a, b), (A.label, B.label), line0, (va, vb), rp)
         chosen = (on_a, on_b, fa, fb)
         if last is not None and all(np.array_equal(x, y) for x, y in zip(chosen, last, strict=True)):
@@ -277,7 +281,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         b = _refit(b, B, q[on_b], fb, weight_beyond)
         line = plane_line(a, b, 0.5 * (p0 + p1), along=u)
         if line is None:
-            return s
+            return [s]
         line0, u = line
         va = _side(a, b, line0, u, line0 + va)
         vb = _side(b, a, line0, u, line0 + vb)
@@ -289,19 +293,43 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     all_a = (ra <= rb) & (ra <= others) & (da > -0.0005) & (da <= rp.band_m) & (ra <= rp.inlier_sigma * sig)
     all_b = (rb < ra) & (rb <= others) & (db > -0.0005) & (db <= rp.band_m) & (rb <= rp.inlier_sigma * sig)
     if all_a.sum() < 10 or all_b.sum() < 10:
-        return s
+        return [s]
     gap = 0.0
     if s.joint == "v_groove":
         reach = min(float(median(da[all_a])), float(median(db[all_b])))
         line0, gap = _root_line(q, sig, line0, u, (va, vb), (a, b), (p0, p1), reach)
-    ends = _supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
-                           noise, rp)  # fmt: skip
-    if ends is None:
-        return s
+    # something standing in a fold (a gusset across it): points in front of both faces, beyond the corner's
+    # rounding; the seam is not carried across it as across a hole in the data, and goes on past it as a seam
+    # of its own. A V-groove's extent is its trace's (perception.fine.trace): its longest stretch only
+    ra_s, rb_s = q @ a.normal + a.offset, q @ b.normal + b.offset
+    standing = (ra_s > 2.0 * margin) & (rb_s > 2.0 * margin) & (np.maximum(da, db) <= rp.band_m)
+    t_standing = None if s.joint == "v_groove" else (q[standing] - line0) @ u
+    pieces = _supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
+                             noise, rp, standing=t_standing)  # fmt: skip
+    if not pieces:
+        return [s]
+    if s.joint == "v_groove":
+        pieces = pieces[:1]
+    return _seams_of(s, pieces, q, (on_a, on_b), (a, b), line0, u, gap)
+
+
+def _seams_of(s: SeamCurve, pieces: list[FloatArray], q: FloatArray,
+              fitted: tuple[NDArray[np.bool_], NDArray[np.bool_]], planes: tuple[Surface, Surface],
+              line0: FloatArray, u: FloatArray, gap: float) -> list[SeamCurve]:  # fmt: skip
+    """Seam ``s`` refitted: one seam per stretch of ``pieces`` (their ends), on the refitted ``planes`` and
+    their fitted points (masks of ``q``)."""
+    (on_a, on_b), (a, b) = fitted, planes
     rms = float(np.sqrt(np.mean(np.concatenate([(q[on_a] @ a.normal + a.offset) ** 2,
                                                 (q[on_b] @ b.normal + b.offset) ** 2]))))  # fmt: skip
-    return replace(s, points=ends, normals_a=np.tile(a.normal, (2, 1)), normals_b=np.tile(b.normal, (2, 1)),
-                   support=int(on_a.sum() + on_b.sum()), rms_m=rms, gap_m=gap)  # fmt: skip
+    t_on = (q - line0) @ u
+    out = []
+    for ends in pieces:
+        lo, hi = sorted(float((e - line0) @ u) for e in ends)
+        # the fit's points; those along its own stretch where the fold is parted
+        fit = (on_a | on_b) if len(pieces) == 1 else (on_a | on_b) & (t_on >= lo) & (t_on <= hi)
+        out.append(replace(s, points=ends, normals_a=np.tile(a.normal, (2, 1)), normals_b=np.tile(b.normal, (2, 1)),
+                           support=int(fit.sum()), rms_m=rms, gap_m=gap))  # fmt: skip
+    return out
 
 
 def _fit_sets(q: FloatArray, others: FloatArray, planes: tuple[Surface, Surface], line0: FloatArray, u: FloatArray,
@@ -443,11 +471,14 @@ def _face_sigma(res: FloatArray, sig: FloatArray, side: NDArray[np.bool_]) -> Fl
 
 
 def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line0: FloatArray, u: FloatArray,
-                    t0: float, t1: float, noise: NoiseModel, rp: RefineParams) -> FloatArray | None:  # fmt: skip
+                    t0: float, t1: float, noise: NoiseModel, rp: RefineParams,
+                    standing: FloatArray | None = None) -> list[FloatArray]:  # fmt: skip
     """The seam's ends from full-resolution support: along the line, where both faces have points close to
-    it but clearly off the other face (bins of ``end_bin_m``, two points each), the covered stretch that
-    overlaps the coarse one; its outermost points. Near the corner each face's points are within the noise
-    of the other face too, and where one face ends the other's points there would seem to continue it."""
+    it but clearly off the other face (bins of ``end_bin_m``, two points each), the covered stretches, the
+    longest first and the others from ``min_piece_m`` long, parted from it by something ``standing``; their
+    outermost points. Near the corner each face's points are within the noise of the other face too, and where
+    one face ends the other's points there would seem to continue it. ``standing``: positions along the line
+    of points in front of both faces; a hole where they stand out from the rest of the fold is not bridged."""
     spans = []
     for q, other in ((qa, b), (qb, a)):
         d = q - line0
@@ -460,7 +491,7 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
         spans.append(t[close])
     ta, tb = spans
     if len(ta) < 3 or len(tb) < 3:
-        return None
+        return []
     lo, hi = min(t0, t1) - rp.end_slack_m, max(t0, t1) + rp.end_slack_m
     nb = max(1, int(np.ceil((hi - lo) / rp.end_bin_m)))
 
@@ -483,23 +514,39 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
         return count >= 2
 
     both = cover(ta) & cover(tb)
-    runs = covered_runs(both, int(rp.end_hole_m / rp.end_bin_m))
-    if not runs:
-        return None
-    r0, r1 = max(runs, key=lambda r: r[1] - r[0])
-    ta_r = ta[(ta >= lo + r0 * rp.end_bin_m) & (ta < lo + r1 * rp.end_bin_m)]
-    tb_r = tb[(tb >= lo + r0 * rp.end_bin_m) & (tb < lo + r1 * rp.end_bin_m)]
-    if ta_r.size == 0 or tb_r.size == 0:
-        return None
-    # fewer points than a bin is widened to hold, past a hole, do not carry the end out (flying pixels, the
-    # other face's noise at its 3 sigma); a bin's worth or more past a hole is the face seen again
-    tail = int(END_BIN_POINTS) - 1
-    ta_r, tb_r = trim_stray_tails(np.sort(ta_r), max_tail=tail), trim_stray_tails(np.sort(tb_r), max_tail=tail)
-    s0 = max(float(ta_r[0]), float(tb_r[0]))
-    s1 = min(float(ta_r[-1]), float(tb_r[-1]))
-    if s1 - s0 < 0.005:
-        return None
-    return np.array([line0 + s0 * u, line0 + s1 * u])
+    blocked = None
+    if standing is not None and len(standing):
+        at = np.floor((standing[(standing >= lo) & (standing < hi)] - lo) / rp.end_bin_m).astype(int)
+        count = np.bincount(np.clip(at, 0, nb - 1), minlength=nb)
+        # an obstacle stands out from the fold's own rounding (a rounded corner's points stand in front of
+        # both planes all along it): four times as many such points as a covered bin holds, two at least
+        typical = float(median(count[both])) if both.any() else 0.0
+        blocked = count >= max(2.0, 4.0 * typical)
+    runs = covered_runs(both, int(rp.end_hole_m / rp.end_bin_m), blocked=blocked)
+    runs.sort(key=lambda r: r[0] - r[1])  # the longest first
+    out: list[FloatArray] = []
+    for k, (r0, r1) in enumerate(runs):
+        ta_r = ta[(ta >= lo + r0 * rp.end_bin_m) & (ta < lo + r1 * rp.end_bin_m)]
+        tb_r = tb[(tb >= lo + r0 * rp.end_bin_m) & (tb < lo + r1 * rp.end_bin_m)]
+        if ta_r.size == 0 or tb_r.size == 0:
+            if k == 0:
+                return []
+            continue
+        # fewer points than a bin is widened to hold, past a hole, do not carry the end out (flying pixels, the
+        # other face's noise at its 3 sigma); a bin's worth or more past a hole is the face seen again
+        tail = int(END_BIN_POINTS) - 1
+        ta_r, tb_r = trim_stray_tails(np.sort(ta_r), max_tail=tail), trim_stray_tails(np.sort(tb_r), max_tail=tail)
+        s0 = max(float(ta_r[0]), float(tb_r[0]))
+        s1 = min(float(ta_r[-1]), float(tb_r[-1]))
+        if k == 0 and s1 - s0 < 0.005:
+            return []  # the longest stretch is too short: so is every other
+        # another stretch is a seam of its own only where something stands between it and the longest (past
+        # a hole in the data alone, the fold is not known to go on)
+        between = slice(min(r1, runs[0][1]), max(r0, runs[0][0]))
+        parted = k == 0 or (blocked is not None and bool(blocked[between].any()))
+        if parted and (k == 0 or s1 - s0 >= rp.min_piece_m):
+            out.append(np.array([line0 + s0 * u, line0 + s1 * u]))
+    return out
 
 
 def _towards(S: Surface, u: FloatArray, s: SeamCurve) -> FloatArray:

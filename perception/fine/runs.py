@@ -8,15 +8,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 
-def covered_runs(covered: NDArray[np.bool_], max_hole: int, *, closed: bool = False) -> list[tuple[int, int]]:
-    """[start, stop) runs of ``covered`` bins, holes of up to ``max_hole`` bins closed. With ``closed`` (a
-    ring) a run may wrap around the end: its stop is then beyond ``len(covered)``."""
+def covered_runs(covered: NDArray[np.bool_], max_hole: int, *, closed: bool = False,
+                 blocked: NDArray[np.bool_] | None = None) -> list[tuple[int, int]]:  # fmt: skip
+    """[start, stop) runs of ``covered`` bins, holes of up to ``max_hole`` bins closed, unless they hold a
+    ``blocked`` bin (something stands there: a hole in the data is bridged, an obstacle is not). With
+    ``closed`` (a ring) a run may wrap around the end: its stop is then beyond ``len(covered)``."""
     c = np.asarray(covered, bool).copy()
+    if blocked is not None:
+        c &= ~np.asarray(blocked, bool)
     idx = np.flatnonzero(c)
     if idx.size == 0:
         return []
     for i, j in itertools.pairwise(idx.tolist()):
-        if 1 < j - i <= max_hole + 1:
+        if 1 < j - i <= max_hole + 1 and (blocked is None or not blocked[i:j].any()):
             c[i:j] = True
     if closed and c.all():
         return [(0, len(c))]

@@ -105,3 +105,22 @@ def test_a_wide_butt_gap_is_not_dropped_for_a_groove_in_it_that_the_camera_canno
     assert seam.joint == "butt"
     err = point_to_polyline_distance(seam.points, truth.points_camera)
     assert float(np.median(err)) < 3e-4 and float(err.max()) < 6e-4
+
+
+def test_gussets_standing_across_a_fold_part_it_into_a_seam_between_each_two() -> None:
+    """Zoo dev gusset 175: three gussets 5 mm thick stand across the floor/wall fillet, which is four seams
+    (31, 48, 42 and 22 mm). The stretches were bridged across the thinnest gusset (a hole under 6 mm), or all
+    but the longest dropped: now the points standing in front of both faces part the fold, and each stretch
+    is a seam of its own, on its truth."""
+    from sim_fakes.zoo import draw_capture
+
+    zc = draw_capture("gusset", 175)
+    truths = [t.points_camera for t in zc.result.ground_truth]
+    assert len(truths) == 4
+    res = detect_surfaces(zc.result.capture, DetectParams(method="surfaces"))
+    assert len(res.seams) == 4
+    for truth in truths:
+        (seam,) = [s for s in res.seams if float(np.median(point_to_polyline_distance(s.points, truth))) < 1e-3]
+        assert float(point_to_polyline_distance(seam.points, truth).max()) < 5e-4
+        length, true_length = (float(np.linalg.norm(c[-1] - c[0])) for c in (seam.points, truth))
+        assert abs(length - true_length) < 3e-3
