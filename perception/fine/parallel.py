@@ -62,11 +62,14 @@ def split_parallel(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surf
         h = q @ n
         o0, o1 = -float(np.mean(h[~part])), -float(np.mean(h[part]))
         rms0, rms1 = float(np.std(h[~part])), float(np.std(h[part]))
+        # the one plane's misfit on all its points (its fit's own rms is over the inliers it was fitted on,
+        # which a surface's first fit may have taken within a scale its two layers widened)
+        one = max(S.rms_m, float(np.sqrt(np.mean((q @ S.normal + S.offset) ** 2))))
         if abs(o1 - o0) >= 6.0 * sig:
-            if max(rms0, rms1) > SPLIT_RMS_SHARE * S.rms_m:
+            if max(rms0, rms1) > SPLIT_RMS_SHARE * one:
                 continue
         elif (abs(o1 - o0) < COHERENT_APART * max(sig, rms0, rms1)
-              or max(rms0, rms1) > max(SPLIT_RMS_SHARE * S.rms_m, 1.25 * sig)
+              or max(rms0, rms1) > max(SPLIT_RMS_SHARE * one, 1.25 * sig)
               or _coherence(grid, part)[0] < COHERENT_SHARE):  # fmt: skip
             # the groups, each pixel with most of its neighbours, lie three of their own sigma apart (a face seen
             # obliquely is noisier than the capture's sigma at its range) and each fits within the noise (their

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
+from perception.fine.adjacency import REACH_M
 from perception.fine.folds import contact_points
 from perception.fine.gaps import best_line
 from perception.fine.parallel import COHERENT_APART
@@ -109,8 +110,9 @@ def _step_along(pu: FloatArray, outward: FloatArray, up: Surface, low: Surface, 
     if float((outward - c) @ across) < 0:
         across = -across  # from the upper plate towards the lower one
     # the edge face must be seen: the camera on its outer side, at under 75 degrees
-    view = -c / np.linalg.norm(c)
-    if float(view @ across) < np.cos(sp.max_incidence_rad):
+    # (somewhere along it: the view turns along a long edge; the view clip keeps the stretch where it is seen)
+    view = -pu / np.linalg.norm(pu, axis=1, keepdims=True)
+    if float(np.max(view @ across)) < np.cos(sp.max_incidence_rad):
         return None
     tu = (pu - c) @ u
     edge = _edge_offset(full, intr, noise_full, up, low, c, u, across, h, sp,
@@ -139,8 +141,9 @@ def _same_line(a: SeamCurve, b: SeamCurve, *, within_m: float = 0.002) -> bool:
 def _edge_runs(pu: FloatArray, n: FloatArray, tol_m: float, *, min_points: int = 10, max_runs: int = 4,
                trials: int = 200) -> list[NDArray[np.intp]]:  # fmt: skip
     """The contact points ``pu`` of an upper plate split into its straight edges (lines in the plane of normal
-    ``n``, RANSAC on point pairs, ``tol_m`` wide), at most ``max_runs``: all of them as one when the best
-    line holds nine in ten (a lap's edge)."""
+    ``n``, RANSAC on point pairs, ``tol_m`` wide), at most ``max_runs``: when the best line holds nine in ten
+    (a lap's edge), the contact band along it as one run (a blob of contact at a plate's far corner would
+    turn and move the edge fitted through it)."""
     rng = np.random.default_rng(0)
     left = np.arange(len(pu))
     runs: list[NDArray[np.intp]] = []
@@ -158,10 +161,24 @@ def _edge_runs(pu: FloatArray, n: FloatArray, tol_m: float, *, min_points: int =
         if inl.sum() < min_points:
             break
         if not runs and inl.mean() >= 0.9:
-            return [np.arange(len(pu))]
+            # a lap's edge: the contact band along its line (two adjacency reaches wide), not another contact
+            # of the same plates far from it (a blob at a plate's far corner)
+            return [left[_within_band(q, n, inl, 2.0 * REACH_M)]]
         runs.append(left[inl])
         left = left[~inl]
     return runs or [np.arange(len(pu))]
+
+
+def _within_band(q: FloatArray, n: FloatArray, on_line: NDArray[np.bool_], width_m: float) -> NDArray[np.bool_]:
+    """The points of ``q`` within ``width_m`` of the least-squares line (in the plane of normal ``n``) through
+    the points ``on_line``."""
+    c = q[on_line].mean(axis=0)
+    d = q[on_line] - c
+    d -= np.outer(d @ n, n)
+    u = np.linalg.eigh(d.T @ d)[1][:, 2]
+    r = q - c
+    r -= np.outer(r @ n, n)
+    return np.asarray(np.linalg.norm(r - np.outer(r @ u, u), axis=1) <= width_m)
 
 
 def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: NoiseModel, up: Surface, low: Surface,

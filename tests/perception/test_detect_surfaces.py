@@ -124,3 +124,27 @@ def test_gussets_standing_across_a_fold_part_it_into_a_seam_between_each_two() -
         assert float(point_to_polyline_distance(seam.points, truth).max()) < 5e-4
         length, true_length = (float(np.linalg.norm(c[-1] - c[0])) for c in (seam.points, truth))
         assert abs(length - true_length) < 3e-3
+
+
+@pytest.mark.parametrize("seed", [46, 134])
+def test_a_lap_is_found_when_its_plates_grew_into_one_patch_or_its_edge_turns_past_75_degrees(seed: int) -> None:
+    """Zoo dev lap 46: a 6 mm plate on a 6 mm plate seen towards its edge face; the face ramps the two tops into
+    one patch, which was fitted as one plane on an inlier band the two layers widened, and split_parallel,
+    comparing each top with that fit's rms, refused to split it; then the contact's blob at a far corner
+    turned the edge. Lap 134: a 3 mm plate's 275 mm edge is seen at under 75 degrees only along part of it,
+    and its centre's view rejected it whole. Each gives its lap seam, on its truth."""
+    from sim_fakes.zoo import draw_capture
+
+    zc = draw_capture("lap", seed)
+    (truth,) = zc.result.ground_truth
+    res = detect_surfaces(zc.result.capture, DetectParams(method="surfaces"))
+    (seam,) = [s for s in res.seams if s.joint == "lap"]
+    # on the plate's edge (a straight line: the seam may run on along it past the truth's seen stretch, as the
+    # zoo's scoring allows), and over the seen stretch
+    a, b = truth.points_camera[0], truth.points_camera[-1]
+    u = (b - a) / np.linalg.norm(b - a)
+    d = seam.points - a
+    off_line = np.linalg.norm(d - np.outer(d @ u, u), axis=1)
+    assert float(off_line.max()) < 5e-4
+    t = np.sort(d @ u)
+    assert t[0] < 0.002 and t[-1] > float(np.linalg.norm(b - a)) - 0.002

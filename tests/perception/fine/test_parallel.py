@@ -91,3 +91,31 @@ def test_plates_four_sigma_apart_split_as_two_regions_and_a_noisier_face_stays_w
     labels, surfaces = _one_surface_of(p)
     labels, out = split_parallel(p, labels, surfaces, normals, noise, min_pixels=SurfaceParams().min_pixels)
     assert len(out) == 1
+
+
+def test_two_tops_fitted_as_one_on_a_widened_inlier_band_are_still_split() -> None:
+    """Zoo dev lap 46 (a 6 mm plate on another, seen frontally so that its edge face ramps the two tops into
+    one patch): the patch's fit took its inliers within a scale the two layers widened, and reported their
+    rms (0.68 mm, a little over twice sigma) as the one plane's. Each top's own rms (up to 0.6 mm with the edge's
+    ramp) is not under 0.7 of that, and the split was refused; measured on all the surface's points the one
+    plane misfits by half the step, and the tops are split."""
+    from perception.fine.parallel import split_parallel
+    from perception.fine.surfaces import SurfaceParams
+    from perception.fine.types import NoiseModel, Surface
+
+    rng = np.random.default_rng(5)
+    u, v = np.meshgrid(np.linspace(-0.1, 0.1, 120), np.linspace(-0.06, 0.06, 80))
+    sigma = 0.0003
+    h = np.where(u > 0.0, 0.006, 0.0) + np.clip((u + 0.002) / 0.004, 0.0, 1.0) * 0.006 * (np.abs(u) < 0.002)
+    z = 0.8 - np.maximum(h, np.where(u > 0.0, 0.006, 0.0)) + rng.normal(0.0, 1.6 * sigma, u.shape)
+    p = np.stack([u, v, z], axis=-1)
+    q = p.reshape(-1, 3)
+    noise = NoiseModel(sigma_1m_m=sigma / 0.64, floor_m=1e-5, pixel_angle_rad=0.0012)
+    # the one plane through both tops, with the rms of a fit on an inlier band the layers widened
+    one = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), 0.797, 0.00068, len(q), q.mean(axis=0), 0.8)
+    normals = np.broadcast_to(np.array([0.0, 0.0, -1.0]), p.shape) + rng.normal(0.0, 0.01, p.shape)
+    _, out = split_parallel(p, np.zeros(p.shape[:2], np.int32), [one], normals, noise,
+                            min_pixels=SurfaceParams().min_pixels)  # fmt: skip
+    assert len(out) == 2
+    lower, upper = sorted(out, key=lambda s: s.centroid[2], reverse=True)
+    assert abs(float(upper.centroid @ lower.normal + lower.offset)) == pytest.approx(0.006, abs=3e-4)

@@ -116,7 +116,7 @@ def test_a_step_is_clean_only_with_a_plate_on_each_side_across_the_band() -> Non
 
 def test_a_pads_contact_splits_into_its_straight_edges_and_a_laps_stays_one() -> None:
     """A 60 x 40 mm pad's contact with the plate runs round its four edges: four runs, each along one edge;
-    a lap's contact, one straight edge (with a tenth of stray points), stays one run."""
+    a lap's contact, one straight edge (with a tenth of stray points), stays one run, without a far blob."""
     from perception.fine.steps import _edge_runs
 
     rng = np.random.default_rng(2)
@@ -135,6 +135,12 @@ def test_a_pads_contact_splits_into_its_straight_edges_and_a_laps_stays_one() ->
     stray = np.column_stack([rng.uniform(-0.1, 0.1, 20), rng.uniform(0.003, 0.01, 20), np.zeros(20)])
     runs = _edge_runs(np.vstack([lap, stray]), n, 0.0015)
     assert len(runs) == 1 and len(runs[0]) == 220
+    # and a blob of contact at a plate's far corner, 60 mm off the edge, is not part of it (it turned the edge
+    # fitted through the run: zoo dev lap 46)
+    edge = np.column_stack([np.linspace(-0.1, 0.1, 400), rng.normal(0.0, 3e-4, 400), np.zeros(400)])
+    blob = np.column_stack([rng.uniform(-0.1, -0.09, 15), rng.uniform(0.06, 0.07, 15), np.zeros(15)])
+    runs = _edge_runs(np.vstack([edge, stray, blob]), n, 0.0015)
+    assert len(runs) == 1 and len(runs[0]) == 420 and runs[0].max() < 420
 
 
 def test_the_seen_edges_of_a_pad_are_steps_at_the_foot_of_their_faces() -> None:
