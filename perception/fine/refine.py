@@ -287,7 +287,8 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         vb = _side(b, a, line0, u, line0 + vb)
     # a V-groove's open root: the two bevels stop short of their intersection and the camera sees through
     # between them; the seam is the middle of their lower edges (the other folds' seam is the intersection)
-    ra, rb = np.abs(q @ a.normal + a.offset), np.abs(q @ b.normal + b.offset)
+    ra_s, rb_s = q @ a.normal + a.offset, q @ b.normal + b.offset  # signed: in front of a face is positive
+    ra, rb = np.abs(ra_s), np.abs(rb_s)
     dl = q - line0
     da, db = dl @ va, dl @ vb
     all_a = (ra <= rb) & (ra <= others) & (da > -0.0005) & (da <= rp.band_m) & (ra <= rp.inlier_sigma * sig)
@@ -301,9 +302,10 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     # something standing in a fold (a gusset across it): points in front of both faces, beyond the corner's
     # rounding; the seam is not carried across it as across a hole in the data, and goes on past it as a seam
     # of its own. A V-groove's extent is its trace's (perception.fine.trace): its longest stretch only
-    ra_s, rb_s = q @ a.normal + a.offset, q @ b.normal + b.offset
-    standing = (ra_s > 2.0 * margin) & (rb_s > 2.0 * margin) & (np.maximum(da, db) <= rp.band_m)
-    t_standing = None if s.joint == "v_groove" else (q[standing] - line0) @ u
+    t_standing = None
+    if s.joint != "v_groove":
+        standing = (ra_s > 2.0 * margin) & (rb_s > 2.0 * margin) & (np.maximum(da, db) <= rp.band_m)
+        t_standing = (q[standing] - line0) @ u
     pieces = _supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
                              noise, rp, standing=t_standing)  # fmt: skip
     if not pieces:
@@ -524,27 +526,27 @@ def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line
         blocked = count >= max(2.0, 4.0 * typical)
     runs = covered_runs(both, int(rp.end_hole_m / rp.end_bin_m), blocked=blocked)
     runs.sort(key=lambda r: r[0] - r[1])  # the longest first
+    # fewer points than a bin is widened to hold, past a hole, do not carry the end out (flying pixels, the
+    # other face's noise at its 3 sigma); a bin's worth or more past a hole is the face seen again
+    tail = int(END_BIN_POINTS) - 1
     out: list[FloatArray] = []
     for k, (r0, r1) in enumerate(runs):
+        # another stretch is a seam of its own only where something stands between it and the longest (past
+        # a hole in the data alone, the fold is not known to go on)
+        if k > 0 and (blocked is None or not blocked[min(r1, runs[0][1]) : max(r0, runs[0][0])].any()):
+            continue
         ta_r = ta[(ta >= lo + r0 * rp.end_bin_m) & (ta < lo + r1 * rp.end_bin_m)]
         tb_r = tb[(tb >= lo + r0 * rp.end_bin_m) & (tb < lo + r1 * rp.end_bin_m)]
         if ta_r.size == 0 or tb_r.size == 0:
             if k == 0:
                 return []
             continue
-        # fewer points than a bin is widened to hold, past a hole, do not carry the end out (flying pixels, the
-        # other face's noise at its 3 sigma); a bin's worth or more past a hole is the face seen again
-        tail = int(END_BIN_POINTS) - 1
         ta_r, tb_r = trim_stray_tails(np.sort(ta_r), max_tail=tail), trim_stray_tails(np.sort(tb_r), max_tail=tail)
         s0 = max(float(ta_r[0]), float(tb_r[0]))
         s1 = min(float(ta_r[-1]), float(tb_r[-1]))
         if k == 0 and s1 - s0 < 0.005:
             return []  # the longest stretch is too short: so is every other
-        # another stretch is a seam of its own only where something stands between it and the longest (past
-        # a hole in the data alone, the fold is not known to go on)
-        between = slice(min(r1, runs[0][1]), max(r0, runs[0][0]))
-        parted = k == 0 or (blocked is not None and bool(blocked[between].any()))
-        if parted and (k == 0 or s1 - s0 >= rp.min_piece_m):
+        if k == 0 or s1 - s0 >= rp.min_piece_m:
             out.append(np.array([line0 + s0 * u, line0 + s1 * u]))
     return out
 

@@ -101,11 +101,7 @@ def _step_along(pu: FloatArray, outward: FloatArray, up: Surface, low: Surface, 
     a point on the lower plate's side of the edge); None where the edge face is not seen or the plates are not
     both there along it."""
     n = low.normal
-    c = pu.mean(axis=0)
-    d = pu - c
-    d_in = d - np.outer(d @ n, n)
-    _, v = np.linalg.eigh(d_in.T @ d_in / len(d_in))
-    u = v[:, 2]
+    c, u = _edge_axis(pu, n)
     across = np.cross(n, u)
     if float((outward - c) @ across) < 0:
         across = -across  # from the upper plate towards the lower one
@@ -169,13 +165,20 @@ def _edge_runs(pu: FloatArray, n: FloatArray, tol_m: float, *, min_points: int =
     return runs or [np.arange(len(pu))]
 
 
+def _edge_axis(p: FloatArray, n: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The centroid of (N, 3) points ``p`` and the unit direction they spread most along in the plane of
+    normal ``n`` (their least-squares line there)."""
+    c = p.mean(axis=0)
+    d = p - c
+    d_in = d - np.outer(d @ n, n)
+    _, v = np.linalg.eigh(d_in.T @ d_in / len(d_in))
+    return c, v[:, 2]
+
+
 def _within_band(q: FloatArray, n: FloatArray, on_line: NDArray[np.bool_], width_m: float) -> NDArray[np.bool_]:
     """The points of ``q`` within ``width_m`` of the least-squares line (in the plane of normal ``n``) through
     the points ``on_line``."""
-    c = q[on_line].mean(axis=0)
-    d = q[on_line] - c
-    d -= np.outer(d @ n, n)
-    u = np.linalg.eigh(d.T @ d)[1][:, 2]
+    c, u = _edge_axis(q[on_line], n)
     r = q - c
     r -= np.outer(r @ n, n)
     return np.asarray(np.linalg.norm(r - np.outer(r @ u, u), axis=1) <= width_m)
