@@ -349,8 +349,9 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     # each plate's edge lies between its last pixel on the plane and the first pixel that sees
     # through the gap; the seam is midway between the two edges
     h_off = (g - c3) @ across
-    edge_l = 0.5 * (float(np.percentile(a_off[left], 97)) + float(np.percentile(h_off, 3)))
-    edge_r = 0.5 * (float(np.percentile(a_off[right], 3)) + float(np.percentile(h_off, 97)))
+    last_l, last_r = float(np.percentile(a_off[left], 97)), float(np.percentile(a_off[right], 3))
+    edge_l = 0.5 * (last_l + float(np.percentile(h_off, 3)))
+    edge_r = 0.5 * (last_r + float(np.percentile(h_off, 97)))
     width = edge_r - edge_l
     if not (0.0 < width < 0.006):
         return None
@@ -374,7 +375,8 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     # so both counts place that edge inside the gap. The face's own points, clearly behind the top and beside
     # the estimate, stand at the edge (a square cut)
     view_across = float(-c3 @ across) / float(np.linalg.norm(c3))
-    face = _face_in_gap(allp, c3, u, across, s, noise_full, (lo, hi), edge_l if view_across > 0 else edge_r)
+    face = _face_in_gap(allp, c3, u, across, s, noise_full, (lo, hi),
+                        (edge_l, last_r) if view_across > 0 else (edge_r, last_l))  # fmt: skip
     if face is not None and abs(view_across) > np.sin(np.radians(10.0)):
         edge_l, edge_r = (face, edge_r) if view_across > 0 else (edge_l, face)
         centre, width = 0.5 * (edge_l + edge_r), edge_r - edge_l
@@ -397,16 +399,25 @@ def _strip_counts(q: FloatArray, c3: FloatArray, u: FloatArray, across: FloatArr
 
 
 def _face_in_gap(allp: FloatArray, c3: FloatArray, u: FloatArray, across: FloatArray, s: Surface,
-                 noise_full: NoiseModel, span: tuple[float, float], edge: float) -> float | None:  # fmt: skip
+                 noise_full: NoiseModel, span: tuple[float, float],
+                 edge: tuple[float, float]) -> float | None:  # fmt: skip
     """Where the edge face seen in a gap stands (offset along ``across``): the median offset of the points
-    within 1.5 mm of ``edge`` that lie clearly behind the plate's top (3 to 12 sigma) along the gap; None
-    with fewer than 10 such points."""
+    within 1.5 mm of the estimated edge ``edge[0]`` that lie clearly behind the plate's top (3 to 12 sigma)
+    along the gap; None with fewer than 10 such points, or when they were not seen through the gap: the face's
+    points are met by rays that cross the top's plane in the gap, between the estimate and ``edge[1]``, the
+    other plate's last pixel on the top (for most of them: the median), while that plate's rim pixels whose
+    depth is pulled deep (mixed with the depth seen through the gap) stand behind the top along their own
+    rays, which cross it on their plate."""
     d = allp - c3
     t, a = d @ u, d @ across
     r = allp @ s.normal + s.offset
     sig = float(noise_full.sigma_m(s.z_m))
-    m = (t >= span[0]) & (t <= span[1]) & (np.abs(a - edge) <= 0.0015) & (r < -3.0 * sig) & (r > -12.0 * sig)
-    return float(median(a[m])) if m.sum() >= 10 else None
+    m = (t >= span[0]) & (t <= span[1]) & (np.abs(a - edge[0]) <= 0.0015) & (r < -3.0 * sig) & (r > -12.0 * sig)
+    if m.sum() < 10:
+        return None
+    top = allp[m] * (-s.offset / (allp[m] @ s.normal))[:, None]  # where their rays cross the top's plane
+    crossing = float(median((top - c3) @ across))
+    return float(median(a[m])) if min(edge) < crossing < max(edge) else None
 
 
 def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,

@@ -89,8 +89,9 @@ def test_a_line_of_holes_in_a_band_of_dropouts_is_not_a_gap() -> None:
 
 
 @pytest.mark.parametrize(("length_m", "found"), [(0.036, False), (0.10, True)])
-def test_a_line_of_holes_in_one_plate_is_a_gap_narrower_than_a_pixel_only_when_it_is_long(length_m: float,
-                                                                                           found: bool) -> None:
+def test_a_line_of_holes_in_one_plate_is_a_gap_narrower_than_a_pixel_only_when_it_is_long(
+    length_m: float, found: bool
+) -> None:
     """30% of the pixels dropped along a line 60 mm into the butt's left plate, the plate whole on both sides:
     over 100 mm that is a gap a pixel's centre falls into in some rows; over 36 mm (a scanner's seam, a
     scratch) its few holes are not taken for one."""
@@ -220,3 +221,22 @@ def test_a_dark_line_is_darker_than_both_sides_and_a_colour_edge_is_not_one() ->
     assert found.sum() - found[30].sum() <= 3  # off the line: a pixel or two of noise at most
     assert not found[:, 38:42].any()
     assert not dark_line(dark_response(rgb), np.zeros((60, 80), dtype=bool)).any()
+
+
+@pytest.mark.parametrize("seed", [35, 66])
+def test_the_far_plates_rim_pixels_pulled_deep_are_not_taken_for_the_face_seen_in_the_gap(seed: int) -> None:
+    """Zoo dev butt 35 and 66: a 0.7 mm gap seen 18 and 31 degrees across it from 0.5-0.8 m. The far plate's
+    rim pixels, their depth mixed with what the gap shows, stand 3-4 sigma behind the top along their own
+    rays, 1 mm on the near side of the gap; they were taken for the near plate's edge face, and the seam moved
+    0.47 and 0.41 mm off the gap's centre. Their rays cross the top on the far plate, not in the gap: the
+    plates' own edges place the seam."""
+    from perception.detect import DetectParams
+    from perception.detect_surfaces import detect_surfaces
+    from sim_fakes.zoo import draw_capture
+
+    zc = draw_capture("butt", seed)
+    (truth,) = [t.points_camera for t in zc.result.ground_truth]
+    (seam,) = detect_surfaces(zc.result.capture, DetectParams(method="surfaces")).seams
+    samples = seam.points[0] + np.linspace(0, 1, 50)[:, None] * (seam.points[1] - seam.points[0])
+    err = point_to_polyline_distance(samples, truth)
+    assert seam.joint == "butt" and float(err.max()) < 0.2e-3
