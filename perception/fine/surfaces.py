@@ -370,7 +370,25 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
     if sum(len(k) for k in planes) + min_points > inl.sum():
         return None
     crms = float(np.sqrt(np.mean(cres[inl] ** 2)))
+    if _fold_fits_better(q[inl], tol[inl], min_points, crms):
+        return None
     return replace(trial, label=label, rms_m=crms, n_points=int(inl.sum()), centroid=mean_rows(q[inl])), inl
+
+
+def _fold_fits_better(q: FloatArray, tol: FloatArray, min_points: int, cylinder_rms: float) -> bool:
+    """Whether two planes meeting at a fold (normals 30 degrees or more apart) take all but fewer than
+    ``min_points`` of ``q`` and fit them better (a smaller RMS distance, each point to its nearer plane) than
+    the cylinder does (``cylinder_rms``): a corner whose blurred band a cylinder bridges (a floor and the foot
+    of a wall seen from afar), not a cylinder. The normals measured near the corner turn across it as on a
+    pipe (the local planes are seven pixels wide), so only the fits tell the two apart."""
+    planes = _ransac_planes(q, tol, min_points, np.random.default_rng(0), pixels=None, width=0, max_planes=2)
+    if len(planes) < 2 or sum(len(k) for k in planes) + min_points <= len(q):
+        return False
+    (na, da, _), (nb, db, _) = (_fit_plane(q[k]) for k in planes)
+    if abs(float(na @ nb)) > np.cos(np.radians(30.0)):
+        return False
+    nearer = np.minimum(np.abs(q @ na + da), np.abs(q @ nb + db))
+    return float(np.sqrt(np.mean(nearer**2))) < cylinder_rms
 
 
 def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,

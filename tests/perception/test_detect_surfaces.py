@@ -148,3 +148,20 @@ def test_a_lap_is_found_when_its_plates_grew_into_one_patch_or_its_edge_turns_pa
     assert float(off_line.max()) < 5e-4
     t = np.sort(d @ u)
     assert t[0] < 0.002 and t[-1] > float(np.linalg.norm(b - a)) - 0.002
+
+
+@pytest.mark.parametrize(("family", "seed"), [("gusset", 3), ("open_box", 51), ("bars", 130)])
+def test_a_corner_seen_from_afar_is_two_faces_not_a_cylinder(family: str, seed: int) -> None:
+    """Zoo dev gusset 3, open_box 51 and bars 130: a floor and the foot of a wall, their corner blurred by the
+    noise, were fitted as one cylinder, and no fold was left for their fillet (gusset 3 gave no seam at all;
+    of the other two's missed fillets 58, 0 and 3% were covered). Two planes fit those points better: four
+    fifths of every seam of the capture lie within a millimetre of one found."""
+    from perception.evaluate import resample_polyline
+    from sim_fakes.zoo import draw_capture
+
+    zc = draw_capture(family, seed)
+    res = detect_surfaces(zc.result.capture, DetectParams(method="surfaces"))
+    for truth in zc.result.ground_truth:
+        samples = resample_polyline(truth.points_camera, 0.002)
+        near = np.min([point_to_polyline_distance(samples, s.points) for s in res.seams], axis=0)
+        assert float(np.mean(near < 1e-3)) >= 0.8, truth.name
