@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.fine.types import FloatArray
+from perception.fine.types import FloatArray, Surface
 from perception.fits import median
 
 
@@ -114,3 +114,34 @@ def circle_across(p: FloatArray, axis: FloatArray) -> tuple[FloatArray, float] |
     if r2 <= 0:
         return None
     return cx * e1 + cy * e2, float(np.sqrt(r2))
+
+
+def normals_follow(c: Surface, q: FloatArray, normals: FloatArray) -> bool:
+    """Whether the measured normals of the points ``q`` of cylinder ``c`` turn with their position around its
+    axis, as on a cylinder: their median angular offset from the radial direction is under an eighth of the
+    points' angular span (a flat face with bent edges, fitted by a wide cylinder, has normals that stay put
+    while the position turns: offsets near a quarter of the span). True when too few normals are known."""
+    ok = np.isfinite(normals).all(axis=1)
+    if ok.sum() < 10:
+        return True
+    e1, e2 = axis_basis(c.axis)
+    span, pos = span_rad(c, q[ok])
+    n = normals[ok]
+    off = np.angle(np.exp(1j * (np.arctan2(n @ e2, n @ e1) - pos)))
+    off = np.minimum(np.abs(off), np.pi - np.abs(off))  # normals point out of the surface or into it
+    return float(median(off)) < span / 8.0
+
+
+def turns(c: Surface, q: FloatArray, min_turn_rad: float) -> bool:
+    """Whether the points of cylinder ``c`` span at least ``min_turn_rad`` around its axis."""
+    return span_rad(c, q)[0] >= min_turn_rad
+
+
+def span_rad(c: Surface, q: FloatArray) -> tuple[float, FloatArray]:
+    """The angle the points of cylinder ``c`` span around its axis, and each point's angle."""
+    e1, e2 = axis_basis(c.axis)
+    rel = q - c.centre
+    pos = np.arctan2(rel @ e2, rel @ e1)
+    ang = np.sort(pos)
+    gaps = np.diff(np.concatenate([ang, [ang[0] + 2 * np.pi]]))
+    return float(2 * np.pi - gaps.max()), pos

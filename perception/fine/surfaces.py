@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from perception.fine.cylinder import axis_basis, fit_cylinder
+from perception.fine.cylinder import fit_cylinder, normals_follow, turns
 from perception.fine.groups import Groups
 from perception.fine.noise import LocalPlanes
 from perception.fine.parallel import split_parallel
@@ -361,7 +361,7 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
             return None
     if inl.mean() < min_share or inl.sum() < min_points or not _two_dimensional(q[inl], spacing, sp):
         return None
-    if not _turns(trial, q[inl], sp.cylinder_min_turn_rad) or not _normals_follow(trial, q[inl], normals[inl]):
+    if not turns(trial, q[inl], sp.cylinder_min_turn_rad) or not normals_follow(trial, q[inl], normals[inl]):
         return None  # hardly bent, or bent only at its edges: a plane, or a blurred fold between two
     # a narrow flat face with its rounded edges bends like a wide cylinder: of the cylinder's own points, the
     # bend must explain at least a surface's worth (``min_points``) that the best plane leaves out
@@ -440,37 +440,6 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
         surfaces.append(Surface(k, "plane", nrm, d, rms, int(inl.sum()), mean_rows(q[inl]), zc))
         lab.reshape(-1)[idx[inl]] = k
     return lab
-
-
-def _normals_follow(c: Surface, q: FloatArray, normals: FloatArray) -> bool:
-    """Whether the measured normals of the points ``q`` of cylinder ``c`` turn with their position around its
-    axis, as on a cylinder: their median angular offset from the radial direction is under an eighth of the
-    points' angular span (a flat face with bent edges, fitted by a wide cylinder, has normals that stay put
-    while the position turns: offsets near a quarter of the span). True when too few normals are known."""
-    ok = np.isfinite(normals).all(axis=1)
-    if ok.sum() < 10:
-        return True
-    e1, e2 = axis_basis(c.axis)
-    span, pos = _span_rad(c, q[ok])
-    n = normals[ok]
-    off = np.angle(np.exp(1j * (np.arctan2(n @ e2, n @ e1) - pos)))
-    off = np.minimum(np.abs(off), np.pi - np.abs(off))  # normals point out of the surface or into it
-    return float(median(off)) < span / 8.0
-
-
-def _turns(c: Surface, q: FloatArray, min_turn_rad: float) -> bool:
-    """Whether the points of cylinder ``c`` span at least ``min_turn_rad`` around its axis."""
-    return _span_rad(c, q)[0] >= min_turn_rad
-
-
-def _span_rad(c: Surface, q: FloatArray) -> tuple[float, FloatArray]:
-    """The angle the points of cylinder ``c`` span around its axis, and each point's angle."""
-    e1, e2 = axis_basis(c.axis)
-    rel = q - c.centre
-    pos = np.arctan2(rel @ e2, rel @ e1)
-    ang = np.sort(pos)
-    gaps = np.diff(np.concatenate([ang, [ang[0] + 2 * np.pi]]))
-    return float(2 * np.pi - gaps.max()), pos
 
 
 def _grow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
