@@ -364,24 +364,25 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
     if not turns(trial, q[inl], sp.cylinder_min_turn_rad) or not normals_follow(trial, q[inl], normals[inl]):
         return None  # hardly bent, or bent only at its edges: a plane, or a blurred fold between two
     # a narrow flat face with its rounded edges bends like a wide cylinder: of the cylinder's own points, the
-    # bend must explain at least a surface's worth (``min_points``) that the best plane leaves out
+    # bend must explain at least a surface's worth (``min_points``) that the best plane leaves out. The planes
+    # are found one after another: the first of two is the best one alone
     planes = _ransac_planes(q[inl], tol[inl], min_points, np.random.default_rng(0), pixels=None, width=0,
-                            max_planes=1)  # fmt: skip
-    if sum(len(k) for k in planes) + min_points > inl.sum():
+                            max_planes=2)  # fmt: skip
+    if (len(planes[0]) if planes else 0) + min_points > inl.sum():
         return None
     crms = float(np.sqrt(np.mean(cres[inl] ** 2)))
-    if _fold_fits_better(q[inl], tol[inl], min_points, crms):
+    if _fold_fits_better(q[inl], planes, min_points, crms):
         return None
     return replace(trial, label=label, rms_m=crms, n_points=int(inl.sum()), centroid=mean_rows(q[inl])), inl
 
 
-def _fold_fits_better(q: FloatArray, tol: FloatArray, min_points: int, cylinder_rms: float) -> bool:
-    """Whether two planes meeting at a fold (normals 30 degrees or more apart) take all but fewer than
-    ``min_points`` of ``q`` and fit them better (a smaller RMS distance, each point to its nearer plane) than
-    the cylinder does (``cylinder_rms``): a corner whose blurred band a cylinder bridges (a floor and the foot
-    of a wall seen from afar), not a cylinder. The normals measured near the corner turn across it as on a
-    pipe (the local planes are seven pixels wide), so only the fits tell the two apart."""
-    planes = _ransac_planes(q, tol, min_points, np.random.default_rng(0), pixels=None, width=0, max_planes=2)
+def _fold_fits_better(q: FloatArray, planes: list[NDArray[np.int64]], min_points: int, cylinder_rms: float) -> bool:
+    """Whether the two ``planes`` found in ``q`` (:func:`_ransac_planes`, their index sets) meet at a fold
+    (normals 30 degrees or more apart), take all but fewer than ``min_points`` of ``q`` and fit them better (a
+    smaller RMS distance, each point to its nearer plane) than the cylinder does (``cylinder_rms``): a corner
+    whose blurred band a cylinder bridges (a floor and the foot of a wall seen from afar), not a cylinder. The
+    normals measured near the corner turn across it as on a pipe (the local planes are seven pixels wide), so
+    only the fits tell the two apart."""
     if len(planes) < 2 or sum(len(k) for k in planes) + min_points <= len(q):
         return False
     (na, da, _), (nb, db, _) = (_fit_plane(q[k]) for k in planes)

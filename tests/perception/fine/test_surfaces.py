@@ -318,7 +318,7 @@ def test_a_corner_fits_two_planes_better_than_a_cylinder_and_a_pipe_does_not() -
     """A blurred corner bridged by a cylinder (a floor and the foot of a wall seen from afar were one cylinder
     patch, and their fillet was missed: dev open_box 186, gusset 186) is two planes; a pipe stays a cylinder."""
     from perception.fine.cylinder import fit_cylinder
-    from perception.fine.surfaces import _fold_fits_better
+    from perception.fine.surfaces import _fold_fits_better, _ransac_planes
 
     corner, pipe = _corner_and_pipe(0.0005)
     for (q, normals), fold in ((corner, True), (pipe, False)):
@@ -328,4 +328,5 @@ def test_a_corner_fits_two_planes_better_than_a_cylinder_and_a_pipe_does_not() -
         axis, centre, r, _ = fit
         rel = q - centre
         radial = np.linalg.norm(rel - np.outer(rel @ axis, axis), axis=1) - r
-        assert _fold_fits_better(q, tol, 50, float(np.sqrt(np.mean(radial**2)))) is fold
+        planes = _ransac_planes(q, tol, 50, np.random.default_rng(0), pixels=None, width=0, max_planes=2)
+        assert _fold_fits_better(q, planes, 50, float(np.sqrt(np.mean(radial**2)))) is fold
