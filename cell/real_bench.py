@@ -44,6 +44,7 @@ class RealItem:
     false_seams: int = 0
     image: str | None = None
     note: str = ""
+    viewpoint: list[float] | None = None  # where the detector looked at the cloud from (the cloud's frame)
 
     @property
     def scored(self) -> bool:
@@ -157,6 +158,7 @@ def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]
              method: Method = "refined") -> tuple[RealItem, Any, Any]:  # fmt: skip
     """Detect one item. Returns the item, its cloud (N, 3) or None, and the seams' paths."""
     from perception.capture import read_point_cloud
+    from perception.cloud_view import sensor_side
     from perception.detect import DetectParams, detect, detect_cloud
     from perception.errors import NoSeamFound, PerceptionError
 
@@ -181,12 +183,14 @@ def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]
             cap = xiaoyu_capture(realdata)
             cloud = cap.points_camera().reshape(-1, 3)
             cloud = cloud[np.isfinite(cloud[:, 2])][::16].astype(np.float64)
+            item.viewpoint = [0.0, 0.0, 0.0]
             item.points = int(np.isfinite(cap.depth_m).sum())
             res = detect(cap, DetectParams(method=method))
         else:
             pc = read_point_cloud(realdata / rel)
             cloud = pc.points
             item.points = len(pc.points)
+            item.viewpoint = sensor_side(pc.points, pc.normals).round(4).tolist()
             res = detect_cloud(pc, DetectParams(method=method))
         item.time_s = time.perf_counter() - t0
         item.outcome = "seams"
@@ -225,9 +229,35 @@ def _authors_path(realdata: Path, paths: list[np.ndarray]) -> str:
     return f"nearest of our seams to the authors' path: median {best * 1000:.1f} mm"
 
 
+def _from_viewpoint(points: np.ndarray, eye: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """(N, 3) points seen by a pinhole at ``eye`` looking at ``centre``: image x, y (right, up) and range."""
+    z = centre - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    q = (points - eye) @ np.column_stack([x, y, z])
+    depth = np.maximum(q[:, 2], 1e-9)
+    return np.column_stack([q[:, 0] / depth, -q[:, 1] / depth, depth])
+
+
+def _headlight(points: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """How squarely each of (N, 3) ``points`` faces ``eye`` (|cos| of its local plane's normal with the ray,
+    the plane from its 12 nearest neighbours): a lamp at the viewpoint shows folds and faces apart."""
+    from scipy.spatial import cKDTree
+
+    _, idx = cKDTree(points).query(points, k=min(12, len(points)))
+    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    _, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))
+    ray = points - eye
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    return np.asarray(np.abs(np.einsum("ni,ni->n", vec[:, :, 0], ray)))
+
+
 def draw(item: RealItem, cloud: np.ndarray | None, paths: list[np.ndarray], ref: dict[str, Any] | None,
          path: Path) -> None:  # fmt: skip
-    """Plan and side views (principal axes of the cloud): points grey, reference green, detected red."""
+    """Plan and side views (principal axes of the cloud) and the cloud as the detector saw it (from its
+    viewpoint, shaded as by a lamp there): points grey, reference green, detected red."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -239,22 +269,32 @@ def draw(item: RealItem, cloud: np.ndarray | None, paths: list[np.ndarray], ref:
     pts = cloud[rng.choice(len(cloud), min(len(cloud), 60000), replace=False)]
     c = pts.mean(axis=0)
     _, _, vt = np.linalg.svd(pts - c, full_matrices=False)
-    fig, axes = plt.subplots(1, 2, figsize=(14, 6))
-    for ax, (i, j), title in zip(axes, ((0, 1), (0, 2)), ("plan (principal axes 1-2)", "side (axes 1-3)"),
-                                 strict=True):  # fmt: skip
-        q = (pts - c) @ vt.T
-        ax.scatter(q[:, i] * 1000, q[:, j] * 1000, s=0.3, c="0.6")
+    views = [("plan (principal axes 1-2)", lambda q: ((q - c) @ vt.T)[:, [0, 1]] * 1000),
+             ("side (axes 1-3)", lambda q: ((q - c) @ vt.T)[:, [0, 2]] * 1000)]  # fmt: skip
+    if item.viewpoint is not None:
+        eye, centre = np.asarray(item.viewpoint, dtype=np.float64), np.median(pts, axis=0)
+        views.append(("from the detector's viewpoint", lambda q: _from_viewpoint(q, eye, centre)[:, :2]))
+    fig, axes = plt.subplots(1, len(views), figsize=(7 * len(views), 6))
+    for k_ax, (ax, (title, project)) in enumerate(zip(axes, views, strict=True)):
+        q = project(pts)
+        if k_ax == 2:  # far points first, so that the near ones are drawn over them
+            order = np.argsort(-_from_viewpoint(pts, eye, centre)[:, 2])
+            ax.scatter(q[order, 0], q[order, 1], s=0.5, c=_headlight(pts, eye)[order], cmap="gray", vmin=0, vmax=1)
+            ax.set_xticks([])
+            ax.set_yticks([])
+        else:
+            ax.scatter(q[:, 0], q[:, 1], s=0.3, c="0.6")
+            ax.set_xlabel("mm")
         if ref is not None:
             for s in ref["seams"]:
-                r = (np.asarray(s["points"]) - c) @ vt.T
-                ax.plot(r[:, i] * 1000, r[:, j] * 1000, "-", color="limegreen", lw=5, alpha=0.6)
+                r = project(np.asarray(s["points"], dtype=np.float64))
+                ax.plot(r[:, 0], r[:, 1], "-", color="limegreen", lw=5, alpha=0.6)
         for k, p in enumerate(paths):
-            r = (p - c) @ vt.T
-            ax.plot(r[:, i] * 1000, r[:, j] * 1000, "-", color="red", lw=1.5)
-            ax.text(r[len(r) // 2, i] * 1000, r[len(r) // 2, j] * 1000, str(k), color="red")
+            r = project(np.asarray(p, dtype=np.float64))
+            ax.plot(r[:, 0], r[:, 1], "-", color="red", lw=1.5)
+            ax.text(r[len(r) // 2, 0], r[len(r) // 2, 1], str(k), color="red")
         ax.set_aspect("equal")
         ax.set_title(title)
-        ax.set_xlabel("mm")
     verdict = "" if item.passed is None else (" PASS" if item.passed else " FAIL")
     fig.suptitle(f"{item.item}: {item.outcome}, {len(paths)} seam(s){verdict}  (green: reference, red: detected)")
     fig.tight_layout()

@@ -82,8 +82,9 @@ def sensor_side(points: FloatArray, normals: FloatArray | None = None) -> FloatA
     1. the file's normals, when they agree on a side (a scanner's normals face the sensor that saw them);
     2. a cloud in front of its origin (every point at positive z, within a 110-degree cone) is in a camera
        frame: the sensor is the origin;
-    3. otherwise the cloud is in a robot or world frame with z up, and the sensor looked down on it: above
-       the cloud's centre, at twice its size.
+    3. otherwise the cloud is in a robot or world frame with z up, and the sensor stood above it, at twice
+       its size from its centre, on the side from which none of its points hide behind others
+       (:func:`_least_hidden_direction`): straight above unless a side shows far fewer hidden.
     """
     p = np.asarray(points, dtype=np.float64)
     centre = np.median(p, axis=0)
@@ -95,7 +96,58 @@ def sensor_side(points: FloatArray, normals: FloatArray | None = None) -> FloatA
     z = p[:, 2]
     if np.all(z > 0) and np.percentile(np.maximum(np.abs(p[:, 0]), np.abs(p[:, 1])) / z, 98) < 1.43:
         return np.zeros(3)
-    return np.asarray(centre + np.array([0.0, 0.0, 2.0 * size]))
+    return np.asarray(centre + _least_hidden_direction(p, centre, size) * 2.0 * size)
+
+
+SIDE_ELEVATIONS_DEG = (70.0, 50.0, 30.0)  # the directions looked at besides straight down, every 30 degrees round
+HIDDEN_DEPTH_SPACINGS = 5.0  # a point this many sample spacings behind the nearest along its pixel's ray is hidden
+
+
+def _hidden_share(p: FloatArray, eye: FloatArray, spacing: float) -> float:
+    """The share of the (N, 3) points ``p`` that lie behind another point of the cloud (by more than
+    :data:`HIDDEN_DEPTH_SPACINGS` sample spacings) along the ray from ``eye``, in pixels 1.5 spacings wide."""
+    d = p - eye
+    r = np.linalg.norm(d, axis=1)
+    u = d / r[:, None]
+    axis = -(eye - np.median(p, axis=0))
+    axis /= np.linalg.norm(axis)
+    x = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(axis, x)
+    w = np.maximum(u @ axis, 1e-9)
+    pix = 1.5 * spacing / float(np.median(r))
+    col = np.floor((u @ x) / w / pix).astype(np.int64)
+    row = np.floor((u @ y) / w / pix).astype(np.int64)
+    key = (col - col.min()) * (int(row.max() - row.min()) + 1) + (row - row.min())
+    order = np.lexsort((r, key))
+    ks, rs = key[order], r[order]
+    first = np.r_[True, ks[1:] != ks[:-1]]
+    nearest = rs[first][np.cumsum(first) - 1]
+    return float(np.mean(rs - nearest > HIDDEN_DEPTH_SPACINGS * spacing))
+
+
+def _least_hidden_direction(p: FloatArray, centre: FloatArray, size: float, *, sample: int = 20000) -> FloatArray:
+    """The unit direction from the cloud's centre towards its sensor, for a cloud in a z-up frame: a scan
+    hides none of its own points from the place it was taken from. Straight above, unless a direction
+    :data:`SIDE_ELEVATIONS_DEG` above the horizon hides at most half as many points (and 1% of them fewer):
+    a tee scanned from one side shows its standing face edge-on from above, and the base plate's shadow
+    behind it."""
+    from perception.cloud import surface_spacing
+
+    q = p[np.random.default_rng(0).choice(len(p), min(sample, len(p)), replace=False)]
+    spacing = surface_spacing(p)
+    up = np.array([0.0, 0.0, 1.0])
+    above = _hidden_share(q, centre + up * 2.0 * size, spacing)
+    best, best_dir = above, up
+    for el in np.radians(SIDE_ELEVATIONS_DEG):
+        for az in np.radians(np.arange(0.0, 360.0, 30.0)):
+            d = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+            h = _hidden_share(q, centre + d * 2.0 * size, spacing)
+            if h < best:
+                best, best_dir = h, d
+    if best <= 0.5 * above and above - best >= 0.01:
+        return best_dir
+    return up
 
 
 def view_cloud(points: FloatArray, viewpoint: FloatArray) -> CloudView:
