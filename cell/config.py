@@ -363,7 +363,9 @@ class DetectionConfig(Section):
     """``[detection]``: :class:`perception.detect.DetectParams` the cell uses, and how seams seen in several captures
     are merged. ``voxel_m``: voxel grid; ``crop``: keep only the seam bands; ``roi_band_m``: their half-width;
     ``z_range_m``: [near, far] pass-through (camera z, metres); ``method``: ``"refined"``, ``"surfaces"`` (the
-    fine stage on fitted surfaces, :mod:`perception.detect_surfaces`) or ``"paper"``;
+    fine stage on fitted surfaces, :mod:`perception.detect_surfaces`) or ``"paper"``; ``unprompted``: without
+    prompts, ``"aim"`` welds the part the camera is aimed at (and what stands on it), not boxes or fixtures
+    beside it on the table; ``"all"`` every part in view;
     ``merge_tol_m``/``merge_min_overlap_m``: two seams closer than this over at least that length are one."""
 
     voxel_m: float = Field(default=0.003, gt=0, le=0.05)
@@ -371,6 +373,7 @@ class DetectionConfig(Section):
     roi_band_m: float = Field(default=0.010, gt=0)
     z_range_m: list[float] = Field(default_factory=lambda: [0.1, 3.0], min_length=2, max_length=2)
     method: Literal["surfaces", "refined", "paper"] = "surfaces"
+    unprompted: Literal["aim", "all"] = "aim"
     merge_tol_m: float = Field(default=0.003, gt=0)
     merge_min_overlap_m: float = Field(default=0.02, gt=0)
 

@@ -259,4 +259,5 @@ def detect_params(detection: DetectionConfig) -> Any:
         z_range_m=(near, far),
         voxel_m=detection.voxel_m,
         method=detection.method,
+        unprompted=detection.unprompted,
     )

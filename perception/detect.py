@@ -383,7 +383,8 @@ def _detect_cloud_surfaces(cloud: PointCloud, p: DetectParams, spacing: float) -
     h, w = view.organized.shape[:2]
     cap = Capture(np.zeros((h, w, 3), np.uint8), view.organized[..., 2].copy(), view.intrinsics,
                   X_base_tool=view.X_cloud_camera, X_tool_camera=np.eye(4), source=cloud.source)  # fmt: skip
-    p = replace(p, z_range_m=(0.0, np.inf), workspace_min_m=None, workspace_max_m=None)
+    # the virtual camera looks at the cloud's middle, not at a part: without prompts every surface counts
+    p = replace(p, z_range_m=(0.0, np.inf), workspace_min_m=None, workspace_max_m=None, unprompted="all")
     res = detect_surfaces(cap, p, organized=view.organized)
     info = res.info | {"spacing_m": round(spacing, 5), "viewpoint": viewpoint.round(4).tolist(),
                        "view_px": [w, h]}  # fmt: skip

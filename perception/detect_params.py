@@ -38,6 +38,10 @@ class DetectParams:
     knn: int = 16
     normal_radius_voxels: float = 2.5
     method: Literal["surfaces", "refined", "paper"] = "surfaces"
+    # without prompts, which surfaces may be seams' faces (surfaces method): "aim", the part the camera is
+    # aimed at and whatever stands on it (a cell's capture poses look at the part; boxes beside it on the
+    # table are not it), or "all" (a cloud's virtual camera is aimed at the cloud's middle, not at a part)
+    unprompted: Literal["aim", "all"] = "aim"
     regions: RegionParams = field(default_factory=RegionParams)
     seams: SeamParams = field(default_factory=SeamParams)
     torch: TorchParams = field(default_factory=TorchParams)

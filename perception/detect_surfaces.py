@@ -54,7 +54,8 @@ def detect_surfaces(
     with log.step("work_image"):
         work = _work_image(organized, factor, p)
     log.counts["work"] = int(np.isfinite(work[..., 2]).sum())
-    curves, surf, noise, support, skip, pairs = _work_resolution_steps(work, factor, organized, capture, log)
+    curves, surf, noise, support, skip, pairs = _work_resolution_steps(work, factor, organized, capture, log,
+                                                                       aim=p.unprompted == "aim")  # fmt: skip
     t_coarse = time.perf_counter() - t0
     curves, used = _full_resolution_steps(curves, surf, noise, skip, pairs, work, organized, capture, log)
     t_fine = time.perf_counter() - t0 - t_coarse
@@ -103,10 +104,12 @@ def _work_image(organized: NDArray[np.float32], factor: int, p: DetectParams) ->
 
 
 def _work_resolution_steps(
-    work: NDArray[np.float64], factor: int, organized: NDArray[np.float32], capture: Capture, log: StepLog
+    work: NDArray[np.float64], factor: int, organized: NDArray[np.float32], capture: Capture, log: StepLog, *,
+    aim: bool = True,
 ) -> tuple[list[SeamCurve], SurfaceSet, NoiseModel, frozenset[int], frozenset[int], tuple[Pair, ...]]:
     """Noise, surfaces, support, adjacency, the workpiece and the candidate seams (folds, gaps, grooves); with
-    the support and the surfaces that are never a seam's face (the support, and those off the workpiece)."""
+    the support and the surfaces that are never a seam's face (the support, and those off the workpiece).
+    ``aim``: without prompts, the part the camera is aimed at is the workpiece (else every surface)."""
     from perception.fine.adjacency import adjacent_pairs
     from perception.fine.folds import fold_seams
     from perception.fine.gaps import gap_seams
@@ -129,7 +132,7 @@ def _work_resolution_steps(
     log.counts["pairs"] = len(pairs)
     with log.step("workpiece"):
         prompted = prompted_labels(capture.prompts_px, surf)
-        workpiece = workpiece_labels(work, surf, pairs, noise, prompted=prompted, support=support)
+        workpiece = workpiece_labels(work, surf, pairs, noise, prompted=prompted, support=support, aim=aim)
         # never a seam's face: the support, and with prompts every surface not joined to a prompted one (the
         # workpiece never holds a support surface: it is neither started from nor reached through)
         skip = support if workpiece is None else frozenset(range(len(surf.surfaces))) - workpiece

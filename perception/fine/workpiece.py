@@ -52,11 +52,26 @@ def workpiece_labels(
     *,
     prompted: frozenset[int],
     support: frozenset[int],
+    aim: bool = True,
 ) -> frozenset[int] | None:
-    """The prompted surfaces and every surface joined to one by touching pairs (not through the support); None
-    when nothing is prompted (every surface may then be the workpiece's)."""
+    """The prompted surfaces and every surface joined to one by touching pairs (not through the support).
+
+    Without prompts, when the support is seen, the camera's aim stands for a prompt (a cell's capture poses
+    look at the part): the surface nearest the image centre, what touches it, and whatever stands on or under
+    that over the support (:func:`_over_footprint`: a pipe whose walls are not seen, by its top). Boxes and
+    fixtures beside it on the table are not the workpiece. None (every surface may be the workpiece's) when
+    nothing is prompted and either no support is seen or the camera is not ``aim``-ed at the part (a cloud's
+    virtual view), or when nothing prompted lies off the support."""
     start = prompted - support
-    if not start:
+    auto = not prompted
+    if auto and not aim:
+        return None
+    if auto:
+        centre = centre_label(surfaces, support) if support else None
+        if centre is None:
+            return None
+        start = frozenset({centre})
+    elif not start:
         return None
     p = np.asarray(points, dtype=np.float64)
     neighbours: dict[int, set[int]] = {}
@@ -65,6 +80,14 @@ def workpiece_labels(
             continue
         neighbours.setdefault(pair.a, set()).add(pair.b)
         neighbours.setdefault(pair.b, set()).add(pair.a)
+    seen = _reached(start, neighbours)
+    if auto:
+        seen = _over_footprint(p, surfaces, seen, neighbours, support)
+    return frozenset(seen)
+
+
+def _reached(start: frozenset[int], neighbours: dict[int, set[int]]) -> set[int]:
+    """``start`` and every label joined to one through ``neighbours``."""
     seen = set(start)
     todo = list(start)
     while todo:
@@ -72,7 +95,72 @@ def workpiece_labels(
             if n not in seen:
                 seen.add(n)
                 todo.append(n)
-    return frozenset(seen)
+    return seen
+
+
+FOOTPRINT_SHARE = 0.1  # a group joins the part when this share of it lies over the part's footprint, or the
+# part's over the group's
+
+
+def _over_footprint(p: FloatArray, surfaces: SurfaceSet, part: set[int], neighbours: dict[int, set[int]],
+                    support: frozenset[int]) -> set[int]:  # fmt: skip
+    """``part`` and every group of touching surfaces (not the support) that stands over its footprint on the
+    support plane or under which it stands, the footprint (the convex hull of the points dropped onto the
+    support, grown by :data:`TOUCH_M`) growing with each group taken, until none is left to take."""
+    from scipy.spatial import ConvexHull, Delaunay
+
+    S = surfaces.surfaces[min(support)]
+    e1 = np.cross(S.normal, [1.0, 0.0, 0.0] if abs(S.normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(S.normal, e1)
+    lab = surfaces.labels
+    flat = p.reshape(-1, 3)
+
+    def dropped(labels: set[int]) -> FloatArray:
+        idx = np.flatnonzero(np.isin(lab.reshape(-1), sorted(labels)))
+        q = flat[idx[:: max(1, len(idx) // 2000)]]
+        q = q[np.isfinite(q[:, 2])]
+        return np.column_stack([q @ e1, q @ e2])
+
+    def inside(xy: FloatArray, of: FloatArray) -> float:
+        """The share of ``xy`` within the footprint of the points ``of``."""
+        grown = np.vstack([of + step for step in TOUCH_M * np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])])
+        hull = grown[ConvexHull(grown).vertices]
+        return float(np.mean(Delaunay(hull).find_simplex(xy) >= 0))
+
+    groups: list[set[int]] = []
+    left = {s.label for s in surfaces.surfaces if s.label not in support and s.label not in part}
+    while left:
+        g = _reached(frozenset({min(left)}), neighbours) & left
+        groups.append(g)
+        left -= g
+    part = set(part)
+    changed = True
+    while changed and groups:
+        changed = False
+        mine = dropped(part)
+        for g in list(groups):
+            theirs = dropped(g)
+            if min(len(theirs), len(mine)) and max(inside(theirs, mine), inside(mine, theirs)) >= FOOTPRINT_SHARE:
+                part |= g
+                groups.remove(g)
+                changed = True
+                break
+    return part
+
+
+def centre_label(surfaces: SurfaceSet, support: frozenset[int]) -> int | None:
+    """The surface (not the support) whose pixel lies nearest the centre of the work image; None if none."""
+    lab = surfaces.labels
+    ok = lab >= 0
+    for k in support:
+        ok &= lab != k
+    if not ok.any():
+        return None
+    ys, xs = np.nonzero(ok)
+    h, w = lab.shape
+    k = int(np.argmin((ys - 0.5 * (h - 1)) ** 2 + (xs - 0.5 * (w - 1)) ** 2))
+    return int(lab[ys[k], xs[k]])
 
 
 def _touch(p: FloatArray, surfaces: SurfaceSet, pair: Pair, noise: NoiseModel) -> bool:

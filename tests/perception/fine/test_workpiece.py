@@ -91,8 +91,29 @@ def test_the_workpiece_is_the_prompted_faces_and_what_touches_them_never_the_clu
     assert all(set(f.surfaces) <= wp for f in tee_folds)
 
 
-def test_without_prompts_every_surface_may_be_the_workpiece() -> None:
-    _, p, surf, pairs, support, nm = tee_and_clutter()
-    assert workpiece_labels(p, surf, pairs, nm, prompted=frozenset(), support=support) is None
-    # a prompt on the table alone names no workpiece either: the support is never one
+def test_without_prompts_the_part_the_camera_is_aimed_at_is_the_workpiece() -> None:
+    """The camera looks at the tee's base plate (the image centre); the boxes 70 mm beside it on the table,
+    with their own concave folds, are not the workpiece. Not aimed (a cloud's virtual view): every surface."""
+    res, p, surf, pairs, support, nm = tee_and_clutter()
+    wp = workpiece_labels(p, surf, pairs, nm, prompted=frozenset(), support=support)
+    parts = {lab: part_of(res, surf, lab) for lab in range(len(surf.surfaces))}
+    big = {lab for lab in parts if surf.surfaces[lab].n_points >= 200}
+    assert wp is not None and {parts[lab] for lab in wp} <= {BASE, WEB}
+    assert {lab for lab in big if parts[lab] in (BASE, WEB)} <= wp
+    assert {lab for lab in big if parts[lab] in (BOX1, BOX2)}  # the boxes are seen, and left out
+    assert workpiece_labels(p, surf, pairs, nm, prompted=frozenset(), support=support, aim=False) is None
+    # a prompt on the table alone names no workpiece: the support is never one
     assert workpiece_labels(p, surf, pairs, nm, prompted=support, support=support) is None
+
+
+def test_what_stands_over_the_part_joins_it_without_touching_and_what_stands_beside_it_does_not() -> None:
+    """With no pair touching (as when a part's walls are not seen, only its top), the web still joins the base
+    plate the camera is aimed at, because it stands over the plate's footprint on the table; the boxes beside
+    the plate do not."""
+    res, p, surf, _, support, nm = tee_and_clutter()
+    wp = workpiece_labels(p, surf, (), nm, prompted=frozenset(), support=support)
+    parts = {lab: part_of(res, surf, lab) for lab in range(len(surf.surfaces))}
+    big = {lab for lab in parts if surf.surfaces[lab].n_points >= 200}
+    assert wp is not None
+    assert {lab for lab in big if parts[lab] == WEB} and {lab for lab in big if parts[lab] == WEB} <= wp
+    assert not {lab for lab in wp if parts[lab] in (BOX1, BOX2)}
