@@ -104,7 +104,12 @@ def _work_image(organized: NDArray[np.float32], factor: int, p: DetectParams) ->
 
 
 def _work_resolution_steps(
-    work: NDArray[np.float64], factor: int, organized: NDArray[np.float32], capture: Capture, log: StepLog, *,
+    work: NDArray[np.float64],
+    factor: int,
+    organized: NDArray[np.float32],
+    capture: Capture,
+    log: StepLog,
+    *,
     aim: bool = True,
 ) -> tuple[list[SeamCurve], SurfaceSet, NoiseModel, frozenset[int], frozenset[int], tuple[Pair, ...]]:
     """Noise, surfaces, support, adjacency, the workpiece and the candidate seams (folds, gaps, grooves); with

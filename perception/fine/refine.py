@@ -149,7 +149,7 @@ def refine_seams(
             beyond = _face_points(full, intr, surfaces, s.points, rp.face_reach_m)
             pieces = _refine_line(s, q, others, A, B, noise_full, rp, beyond=beyond,
                                   weight_beyond=float(surfaces.factor**2))  # fmt: skip
-            if pieces[0] is not s:
+            if pieces:
                 segmented = _labelled_points(full, intr, surfaces, s.points, rp.end_slack_m + rp.band_m)
                 pieces = [_within_segmentation(r, segmented, noise_full, surfaces.factor, rp) for r in pieces]
             out += pieces
@@ -245,18 +245,20 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
                  weight_beyond: float = 1.0) -> list[SeamCurve]:  # fmt: skip
     """The seam of planes A and B refitted on the points ``q`` near it and on ``beyond`` (labelled, weighted):
     one seam for each stretch where both faces are there (a gusset standing across a fold parts it), the
-    longest first; ``[s]`` itself when it cannot be refitted."""
+    longest first; none when the full-resolution points do not hold both faces beside it (ten points of
+    each, clear of the corner and within the noise) or no stretch of it has both (a fold between two
+    warped plates' pieces that lie on each other's planes only along a strip, not a seam)."""
     p0, p1 = s.points[0], s.points[-1]
     length = float(np.linalg.norm(p1 - p0))
     u = (p1 - p0) / length
     if len(q) < 20:
-        return [s]
+        return []
     d = q - p0
     t = d @ u
     inside = (t >= -0.002) & (t <= length + 0.002)
     q, t, others = q[inside], t[inside], others[inside]
     if len(q) < 20:
-        return [s]
+        return []
     far, far_lab = (np.zeros((0, 3)), np.zeros(0, dtype=np.int32)) if beyond is None else beyond
     sig_far = noise.sigma_m(far[:, 2])
     far_groups = [(int(k), np.flatnonzero(far_lab == k)) for k in np.unique(far_lab)]  # per surface, found once
@@ -271,7 +273,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     for _ in range(rp.iterations):
         on_a, on_b = _fit_sets(q, others, (a, b), line0, u, (va, vb), sig, margin, rp)
         if on_a.sum() < 10 or on_b.sum() < 10:
-            return [s]
+            return []
         fa, fb = _beyond_band(far, far_groups, sig_far, (a, b), (A.label, B.label), line0, (va, vb), rp)
         chosen = (on_a, on_b, fa, fb)
         if last is not None and all(np.array_equal(x, y) for x, y in zip(chosen, last, strict=True)):
@@ -281,7 +283,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         b = _refit(b, B, q[on_b], fb, weight_beyond)
         line = plane_line(a, b, 0.5 * (p0 + p1), along=u)
         if line is None:
-            return [s]
+            return []
         line0, u = line
         va = _side(a, b, line0, u, line0 + va)
         vb = _side(b, a, line0, u, line0 + vb)
@@ -294,7 +296,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     all_a = (ra <= rb) & (ra <= others) & (da > -0.0005) & (da <= rp.band_m) & (ra <= rp.inlier_sigma * sig)
     all_b = (rb < ra) & (rb <= others) & (db > -0.0005) & (db <= rp.band_m) & (rb <= rp.inlier_sigma * sig)
     if all_a.sum() < 10 or all_b.sum() < 10:
-        return [s]
+        return []
     gap = 0.0
     if s.joint == "v_groove":
         reach = min(float(median(da[all_a])), float(median(db[all_b])))
@@ -309,7 +311,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     pieces = _supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
                              noise, rp, standing=t_standing)  # fmt: skip
     if not pieces:
-        return [s]
+        return []
     if s.joint == "v_groove":
         pieces = pieces[:1]
     return _seams_of(s, pieces, q, (on_a, on_b), (a, b), line0, u, gap)

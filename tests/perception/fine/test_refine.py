@@ -3,6 +3,8 @@ fraction of the noise, and its ends are where the faces' support ends."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -277,3 +279,20 @@ def test_a_seam_seen_along_its_length_does_not_run_past_its_ends(family: str, se
         (seam,) = [s for s in seams if float(np.median(point_to_polyline_distance(s.points, truth))) < 1e-3]
         samples = seam.points[0] + np.linspace(0, 1, 200)[:, None] * (seam.points[-1] - seam.points[0])
         assert float(point_to_polyline_distance(samples, truth).max()) < 1e-3
+
+
+def test_a_fold_beyond_where_its_faces_are_is_not_a_seam() -> None:
+    """The tee fillet's line carried on 40-100 mm past the web's end, where the base plate is but the web is
+    not: the full-resolution points hold only one face beside it, so refinement gives no seam (it kept the
+    coarse line as it came before)."""
+    res = rendered("tee", "stereo", 0)
+    p, _, nm, surf = work("tee", "stereo", 0)
+    coarse = fold_seams(p, surf, adjacent_pairs(surf, nm), nm, support=find_support(p, surf, nm))
+    (gt,) = res.ground_truth
+    (fillet,) = [c for c in coarse if np.median(point_to_polyline_distance(c.points, gt.points_camera)) < 0.002]
+    a, b = gt.points_camera[0], gt.points_camera[-1]
+    u = (b - a) / np.linalg.norm(b - a)
+    past = replace(fillet, points=np.array([b + 0.04 * u, b + 0.10 * u]))
+    refined, _ = refine_seams([past, fillet], res.capture.points_camera(), res.capture.intrinsics, surf, nm)
+    assert len(refined) == 1
+    assert np.median(point_to_polyline_distance(refined[0].points, gt.points_camera)) < 2e-4
