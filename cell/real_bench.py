@@ -156,8 +156,9 @@ Method = Literal["refined", "surfaces", "paper"]
 
 def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]],
              method: Method = "refined") -> tuple[RealItem, Any, Any]:  # fmt: skip
-    """Detect one item. Returns the item, its cloud (N, 3) or None, and the seams' paths."""
-    from perception.capture import read_point_cloud
+    """Detect one item. Returns the item, its cloud (a :class:`perception.capture.PointCloud`, with its
+    colours when the file has them) or None, and the seams' paths."""
+    from perception.capture import PointCloud, read_point_cloud
     from perception.cloud_view import sensor_side
     from perception.detect import DetectParams, detect, detect_cloud
     from perception.errors import NoSeamFound, PerceptionError
@@ -181,14 +182,14 @@ def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]
     try:
         if kind == "rgbd frame":
             cap = xiaoyu_capture(realdata)
-            cloud = cap.points_camera().reshape(-1, 3)
-            cloud = cloud[np.isfinite(cloud[:, 2])][::16].astype(np.float64)
+            xyz = cap.points_camera().reshape(-1, 3)
+            cloud = PointCloud(xyz[np.isfinite(xyz[:, 2])][::16].astype(np.float64), source=rel)
             item.viewpoint = [0.0, 0.0, 0.0]
             item.points = int(np.isfinite(cap.depth_m).sum())
             res = detect(cap, DetectParams(method=method))
         else:
             pc = read_point_cloud(realdata / rel)
-            cloud = pc.points
+            cloud = pc
             item.points = len(pc.points)
             item.viewpoint = sensor_side(pc.points, pc.normals).round(4).tolist()
             res = detect_cloud(pc, DetectParams(method=method))
@@ -254,19 +255,21 @@ def _headlight(points: np.ndarray, eye: np.ndarray) -> np.ndarray:
     return np.asarray(np.abs(np.einsum("ni,ni->n", vec[:, :, 0], ray)))
 
 
-def draw(item: RealItem, cloud: np.ndarray | None, paths: list[np.ndarray], ref: dict[str, Any] | None,
-         path: Path) -> None:  # fmt: skip
-    """Plan and side views (principal axes of the cloud) and the cloud as the detector saw it (from its
-    viewpoint, shaded as by a lamp there): points grey, reference green, detected red."""
+def draw(item: RealItem, cloud: Any, paths: list[np.ndarray], ref: dict[str, Any] | None, path: Path) -> None:
+    """Plan and side views (principal axes of the cloud, a :class:`perception.capture.PointCloud`) and the
+    cloud as the detector saw it (from its viewpoint, shaded as by a lamp there, in its own colours when it
+    has them): points grey, reference green, detected red."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    if cloud is None or len(cloud) == 0:
+    if cloud is None or len(cloud.points) == 0:
         return
     rng = np.random.default_rng(0)
-    pts = cloud[rng.choice(len(cloud), min(len(cloud), 60000), replace=False)]
+    pick = rng.choice(len(cloud.points), min(len(cloud.points), 60000), replace=False)
+    pts = cloud.points[pick]
+    rgb = None if cloud.colors is None else np.clip(np.asarray(cloud.colors)[pick], 0.0, 1.0)
     c = pts.mean(axis=0)
     _, _, vt = np.linalg.svd(pts - c, full_matrices=False)
     views = [("plan (principal axes 1-2)", lambda q: ((q - c) @ vt.T)[:, [0, 1]] * 1000),
@@ -279,7 +282,11 @@ def draw(item: RealItem, cloud: np.ndarray | None, paths: list[np.ndarray], ref:
         q = project(pts)
         if k_ax == 2:  # far points first, so that the near ones are drawn over them
             order = np.argsort(-_from_viewpoint(pts, eye, centre)[:, 2])
-            ax.scatter(q[order, 0], q[order, 1], s=0.5, c=_headlight(pts, eye)[order], cmap="gray", vmin=0, vmax=1)
+            lit = _headlight(pts, eye)
+            if rgb is None:
+                ax.scatter(q[order, 0], q[order, 1], s=0.5, c=lit[order], cmap="gray", vmin=0, vmax=1)
+            else:  # the points' own colours, darker where a face turns from the viewpoint
+                ax.scatter(q[order, 0], q[order, 1], s=0.5, c=(rgb * (0.4 + 0.6 * lit)[:, None])[order])
             ax.set_xticks([])
             ax.set_yticks([])
         else:
