@@ -171,6 +171,11 @@ def test_detection_and_welding_tables_map_to_the_library_parameters() -> None:
     assert detect_params(DetectionConfig(method="surfaces")).method == "surfaces"
     with pytest.raises(ValueError, match="surfaces"):
         DetectionConfig(method="best")  # type: ignore[arg-type]
+    # without prompts: the part the camera is aimed at (the default), or every surface off the table
+    assert detect_params(DetectionConfig()).unprompted == "aim"
+    assert detect_params(DetectionConfig(unprompted="all")).unprompted == "all"
+    with pytest.raises(ValueError, match="aim"):
+        DetectionConfig(unprompted="everything")  # type: ignore[arg-type]
     params = weld_params(WeldingConfig(work_angle_deg=30.0), WeldingConfig(arc_output=3), SeamFilter())
     assert params.work_angle_rad == pytest.approx(math.pi / 6) and params.arc_do_index == 3
 
