@@ -231,13 +231,12 @@ def _authors_path(realdata: Path, paths: list[np.ndarray]) -> str:
 
 
 def _from_viewpoint(points: np.ndarray, eye: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """(N, 3) points seen by a pinhole at ``eye`` looking at ``centre``: image x, y (right, up) and range."""
+    """(N, 3) points seen by a pinhole at ``eye`` looking at ``centre`` (the detector's virtual camera,
+    :func:`perception.cloud_view.view_axes`): image x, y (right, up) and range."""
+    from perception.cloud_view import view_axes
+
     z = centre - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    q = (points - eye) @ np.column_stack([x, y, z])
+    q = (points - eye) @ view_axes(z / np.linalg.norm(z))
     depth = np.maximum(q[:, 2], 1e-9)
     return np.column_stack([q[:, 0] / depth, -q[:, 1] / depth, depth])
 
@@ -279,9 +278,9 @@ def draw(item: RealItem, cloud: Any, paths: list[np.ndarray], ref: dict[str, Any
         views.append(("from the detector's viewpoint", lambda q: _from_viewpoint(q, eye, centre)[:, :2]))
     fig, axes = plt.subplots(1, len(views), figsize=(7 * len(views), 6))
     for k_ax, (ax, (title, project)) in enumerate(zip(axes, views, strict=True)):
-        q = project(pts)
         if k_ax == 2:  # far points first, so that the near ones are drawn over them
-            order = np.argsort(-_from_viewpoint(pts, eye, centre)[:, 2])
+            seen = _from_viewpoint(pts, eye, centre)
+            q, order = seen[:, :2], np.argsort(-seen[:, 2])
             lit = _headlight(pts, eye)
             if rgb is None:
                 ax.scatter(q[order, 0], q[order, 1], s=0.5, c=lit[order], cmap="gray", vmin=0, vmax=1)
@@ -290,6 +289,7 @@ def draw(item: RealItem, cloud: Any, paths: list[np.ndarray], ref: dict[str, Any
             ax.set_xticks([])
             ax.set_yticks([])
         else:
+            q = project(pts)
             ax.scatter(q[:, 0], q[:, 1], s=0.3, c="0.6")
             ax.set_xlabel("mm")
         if ref is not None:

@@ -75,7 +75,7 @@ def _fill_holes(organized: NDArray[np.float32]) -> NDArray[np.float32]:
     return out
 
 
-def sensor_side(points: FloatArray, normals: FloatArray | None = None) -> FloatArray:
+def sensor_side(points: FloatArray, normals: FloatArray | None = None, *, spacing_m: float | None = None) -> FloatArray:
     """Where a cloud's sensor stood, by the stated rule for clouds that do not say (this decides which side
     of a surface is outside, so concave and convex):
 
@@ -85,7 +85,9 @@ def sensor_side(points: FloatArray, normals: FloatArray | None = None) -> FloatA
     3. otherwise the cloud is in a robot or world frame with z up, and the sensor stood above it, at twice
        its size from its centre, on the side from which none of its points hide behind others
        (:func:`_least_hidden_direction`): straight above unless a side shows far fewer hidden.
-    """
+
+    ``spacing_m``: the cloud's sample spacing (:func:`perception.cloud.surface_spacing`) when the caller has
+    it already."""
     p = np.asarray(points, dtype=np.float64)
     centre = np.median(p, axis=0)
     size = max(float(np.linalg.norm(np.ptp(p, axis=0))), 0.1)
@@ -96,24 +98,30 @@ def sensor_side(points: FloatArray, normals: FloatArray | None = None) -> FloatA
     z = p[:, 2]
     if np.all(z > 0) and np.percentile(np.maximum(np.abs(p[:, 0]), np.abs(p[:, 1])) / z, 98) < 1.43:
         return np.zeros(3)
-    return np.asarray(centre + _least_hidden_direction(p, centre, size) * 2.0 * size)
+    return np.asarray(centre + _least_hidden_direction(p, centre, size, spacing_m) * 2.0 * size)
 
 
 SIDE_ELEVATIONS_DEG = (70.0, 50.0, 30.0)  # the directions looked at besides straight down, every 30 degrees round
 HIDDEN_DEPTH_SPACINGS = 5.0  # a point this many sample spacings behind the nearest along its pixel's ray is hidden
 
 
-def _hidden_share(p: FloatArray, eye: FloatArray, spacing: float) -> float:
+def view_axes(forward: FloatArray) -> FloatArray:
+    """(3, 3) columns x, y, z of a camera looking along the unit ``forward`` (z), x level where it can be
+    (across z's up, else across x): the virtual camera of :func:`view_cloud` and of its viewpoint search."""
+    x = np.cross(forward, [0.0, 0.0, 1.0] if abs(forward[2]) < 0.9 else [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(forward, x), forward])
+
+
+def _hidden_share(p: FloatArray, eye: FloatArray, middle: FloatArray, spacing: float) -> float:
     """The share of the (N, 3) points ``p`` that lie behind another point of the cloud (by more than
-    :data:`HIDDEN_DEPTH_SPACINGS` sample spacings) along the ray from ``eye``, in pixels 1.5 spacings wide."""
+    :data:`HIDDEN_DEPTH_SPACINGS` sample spacings) along the ray from ``eye``, in pixels 1.5 spacings wide, the
+    camera looking at ``middle``."""
     d = p - eye
     r = np.linalg.norm(d, axis=1)
     u = d / r[:, None]
-    axis = -(eye - np.median(p, axis=0))
-    axis /= np.linalg.norm(axis)
-    x = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(axis, x)
+    axis = middle - eye
+    x, y, axis = view_axes(axis / np.linalg.norm(axis)).T
     w = np.maximum(u @ axis, 1e-9)
     pix = 1.5 * spacing / float(np.median(r))
     col = np.floor((u @ x) / w / pix).astype(np.int64)
@@ -126,7 +134,8 @@ def _hidden_share(p: FloatArray, eye: FloatArray, spacing: float) -> float:
     return float(np.mean(rs - nearest > HIDDEN_DEPTH_SPACINGS * spacing))
 
 
-def _least_hidden_direction(p: FloatArray, centre: FloatArray, size: float, *, sample: int = 20000) -> FloatArray:
+def _least_hidden_direction(p: FloatArray, centre: FloatArray, size: float, spacing_m: float | None = None, *,
+                            sample: int = 20000) -> FloatArray:  # fmt: skip
     """The unit direction from the cloud's centre towards its sensor, for a cloud in a z-up frame: a scan
     hides none of its own points from the place it was taken from. Straight above, unless a direction
     :data:`SIDE_ELEVATIONS_DEG` above the horizon hides at most half as many points (and 1% of them fewer):
@@ -135,14 +144,15 @@ def _least_hidden_direction(p: FloatArray, centre: FloatArray, size: float, *, s
     from perception.cloud import surface_spacing
 
     q = p[np.random.default_rng(0).choice(len(p), min(sample, len(p)), replace=False)]
-    spacing = surface_spacing(p)
+    spacing = surface_spacing(p) if spacing_m is None else spacing_m
+    middle = np.median(q, axis=0)  # where every candidate camera looks
     up = np.array([0.0, 0.0, 1.0])
-    above = _hidden_share(q, centre + up * 2.0 * size, spacing)
+    above = _hidden_share(q, centre + up * 2.0 * size, middle, spacing)
     best, best_dir = above, up
     for el in np.radians(SIDE_ELEVATIONS_DEG):
         for az in np.radians(np.arange(0.0, 360.0, 30.0)):
             d = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-            h = _hidden_share(q, centre + d * 2.0 * size, spacing)
+            h = _hidden_share(q, centre + d * 2.0 * size, middle, spacing)
             if h < best:
                 best, best_dir = h, d
     if best <= 0.5 * above and above - best >= 0.01:
@@ -165,10 +175,7 @@ def view_cloud(points: FloatArray, viewpoint: FloatArray) -> CloudView:
     if dist < 1e-6:
         raise PerceptionError("the viewpoint lies at the cloud's centre")
     z /= dist
-    x = np.cross(z, [0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.column_stack([x, y, z])  # camera axes in the cloud's frame
+    R = view_axes(z)  # camera axes in the cloud's frame
     cam = (p - eye) @ R
     # 98% of the points within 55 degrees of the axis (tan 55 = 1.43): move back as far as that needs
     lateral = np.maximum(np.abs(cam[:, 0]), np.abs(cam[:, 1]))

@@ -378,7 +378,7 @@ def _detect_cloud_surfaces(cloud: PointCloud, p: DetectParams, spacing: float) -
     from perception.cloud_view import sensor_side, view_cloud
     from perception.detect_surfaces import detect_surfaces
 
-    viewpoint = sensor_side(cloud.points, cloud.normals)
+    viewpoint = sensor_side(cloud.points, cloud.normals, spacing_m=spacing)
     view = view_cloud(cloud.points, viewpoint)
     h, w = view.organized.shape[:2]
     cap = Capture(np.zeros((h, w, 3), np.uint8), view.organized[..., 2].copy(), view.intrinsics,

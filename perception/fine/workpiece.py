@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from perception.fine.cylinder import axis_basis
 from perception.fine.folds import contact_points
 from perception.fine.types import FloatArray, NoiseModel, Pair, SurfaceSet
 from perception.fits import median
@@ -62,16 +63,13 @@ def workpiece_labels(
     fixtures beside it on the table are not the workpiece. None (every surface may be the workpiece's) when
     nothing is prompted and either no support is seen or the camera is not ``aim``-ed at the part (a cloud's
     virtual view), or when nothing prompted lies off the support."""
-    start = prompted - support
     auto = not prompted
-    if auto and not aim:
-        return None
     if auto:
-        centre = centre_label(surfaces, support) if support else None
-        if centre is None:
-            return None
-        start = frozenset({centre})
-    elif not start:
+        centre = centre_label(surfaces, support) if aim and support else None
+        start = frozenset() if centre is None else frozenset({centre})
+    else:
+        start = prompted - support
+    if not start:
         return None
     p = np.asarray(points, dtype=np.float64)
     neighbours: dict[int, set[int]] = {}
@@ -109,10 +107,7 @@ def _over_footprint(p: FloatArray, surfaces: SurfaceSet, part: set[int], neighbo
     support, grown by :data:`TOUCH_M`) growing with each group taken, until none is left to take."""
     from scipy.spatial import ConvexHull, Delaunay
 
-    S = surfaces.surfaces[min(support)]
-    e1 = np.cross(S.normal, [1.0, 0.0, 0.0] if abs(S.normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(S.normal, e1)
+    e1, e2 = axis_basis(surfaces.surfaces[min(support)].normal)  # the support plane's own axes
     lab = surfaces.labels
     flat = p.reshape(-1, 3)
 
