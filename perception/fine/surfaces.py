@@ -59,10 +59,11 @@ def fit_plane_rows(p: FloatArray, rows: FloatArray, weights: FloatArray | None =
     """:func:`_fit_plane` of (N, 3) points ``p`` also given as their (3, N) coordinate rows ``rows`` (a fit
     that refits the same points keeps both). The centroid is summed over ``p``
     (:func:`perception.fits.sum_rows`) and the points are centred and weighted in ``rows``, where that is one
-    pass along each row (on (N, 3) rows it is a loop three values wide, ten times slower); every value is the
-    one the (N, 3) arithmetic gives, the scatter matrix's product included (BLAS is handed the same matrices,
-    in the other layout). ``work``: two (3, N) arrays the centred and the weighted rows are written to (a
-    fit repeated on the same points reuses them: a fresh array of that size costs its page faults)."""
+    pass along each row (on (N, 3) rows it is a loop three values wide, ten times slower); the values are the
+    ones the (N, 3) arithmetic gives, to rounding (BLAS is handed the same matrices in the other layout, and
+    OpenBLAS picks its kernel, so its order of summing, by the CPU). ``work``: two (3, N) arrays the centred
+    and the weighted rows are written to (a fit repeated on the same points reuses them: a fresh array of
+    that size costs its page faults)."""
     if weights is None:
         c = mean_rows(p)
         q = np.subtract(rows, c[:, None], out=None if work is None else work[0])
