@@ -131,12 +131,14 @@ def _work_resolution_steps(
         surf = segment_surfaces(work, planes, noise, factor=factor)
     log.counts["surfaces"] = len(surf.surfaces)
     with log.step("support"):
-        support = find_support(work, surf, noise)
+        # of the planes that could be the table, one the operator did not click (the faces of an inside corner
+        # seen from in front each have every point on their camera side, and the largest is often a wall)
+        prompted = prompted_labels(capture.prompts_px, surf)
+        support = find_support(work, surf, noise, prompted=prompted)
     with log.step("adjacency"):
         pairs = adjacent_pairs(surf, noise)
     log.counts["pairs"] = len(pairs)
     with log.step("workpiece"):
-        prompted = prompted_labels(capture.prompts_px, surf)
         workpiece = workpiece_labels(work, surf, pairs, noise, prompted=prompted, support=support, aim=aim)
         # never a seam's face: the support, and with prompts every surface not joined to a prompted one (the
         # workpiece never holds a support surface: it is neither started from nor reached through)

@@ -1,8 +1,8 @@
 """The surface the workpiece stands on (the table, a fixture plate): never a seam's face.
 
 It is the plane below everything: nearly every valid point lies on it or on its camera side. Of the planes
-that qualify, the one with the most support is taken, provided it holds a fair share of the image and is
-not a surface the operator prompted as part of the workpiece.
+that qualify (holding a fair share of the image), the largest one the operator did not prompt as part of the
+workpiece is taken; the largest of all when every one was prompted (a stray click on the table's border).
 """
 
 from __future__ import annotations
@@ -32,15 +32,20 @@ def find_support(
     q = p.reshape(-1, 3)[every[:: max(1, len(every) // 40000)]]  # the sample, gathered alone
     tol = 6.0 * noise.sigma_m(q[:, 2]) + 0.002
     labelled = int((surfaces.labels >= 0).sum())
-    best, best_n = None, 0
+    qualify = []
     for s in surfaces.surfaces:
-        if s.kind != "plane" or s.label in prompted or s.n_points < MIN_SHARE * labelled:
+        if s.kind != "plane" or s.n_points < MIN_SHARE * labelled:
             continue
         above = (q @ s.normal + s.offset) >= -tol
-        if above.mean() >= ABOVE_SHARE and s.n_points > best_n:
-            best, best_n = s.label, s.n_points
-    if best is None:
+        if above.mean() >= ABOVE_SHARE:
+            qualify.append(s)
+    # the faces of an inside corner seen from in front each have every point on their camera side: of those
+    # that qualify, one the operator did not click is the table (a click on the table itself, a stray one on
+    # a thin face's border, does not make a wall the support)
+    unclicked = [s for s in qualify if s.label not in prompted]
+    if not qualify:
         return frozenset()
+    best = max(unclicked or qualify, key=lambda s: s.n_points).label
     S = surfaces.surfaces[best]
     same = {best}
     for s in surfaces.surfaces:

@@ -1,4 +1,4 @@
-"""The support: the table under the workpiece, found as the plane below everything."""
+"""The support: the table under the workpiece, found as the plane below everything (of several, one not clicked)."""
 
 from __future__ import annotations
 
@@ -25,10 +25,33 @@ def test_the_table_is_the_support_and_no_workpiece_face_is() -> None:
                 assert s.label in sup, (name, s.label)
 
 
-def test_a_prompted_surface_is_never_the_support() -> None:
-    p, _, nm, surf = work("tee")
-    sup = find_support(p, surf, nm)
-    assert find_support(p, surf, nm, prompted=frozenset(sup)) != sup
+def _inside_corner():
+    """A camera looking into an inside corner: a wall square to its axis at 1 m filling the upper 70% of the
+    image, the floor 0.2 m below the axis in the rows under it; both planes have every point on their camera
+    side."""
+    from perception.fine.types import NoiseModel, Surface, SurfaceSet
+
+    h, w = 200, 300
+    yy, xx = np.mgrid[0:h, 0:w]
+    dx, dy = (xx - w / 2) * 0.002, (yy - 0.7 * h) * 0.002 + 0.2
+    floor = dy > 0.2
+    t = np.where(floor, 0.2 / np.maximum(dy, 1e-9), 1.0)
+    p = np.dstack([dx * t, dy * t, t])
+    labels = np.where(floor, 1, 0).astype(np.int32)
+    wall = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), 1.0, 5e-4, int((~floor).sum()), np.zeros(3), 1.0)
+    ground = Surface(1, "plane", np.array([0.0, -1.0, 0.0]), 0.2, 5e-4, int(floor.sum()), np.zeros(3), 0.9)
+    nm = NoiseModel(sigma_1m_m=5e-4, floor_m=5e-5, pixel_angle_rad=0.002)
+    return p, SurfaceSet(labels, 1, (wall, ground)), nm
+
+
+def test_of_an_inside_corners_faces_the_one_nobody_clicked_is_the_table() -> None:
+    # both faces qualify (every point on their camera side); the wall is the larger. Clicked as the
+    # workpiece's, it is not the table: the floor is. A click on both leaves the larger, as with none (a stray
+    # click on the table's border does not take the table away)
+    p, surf, nm = _inside_corner()
+    assert find_support(p, surf, nm) == frozenset({0})
+    assert find_support(p, surf, nm, prompted=frozenset({0})) == frozenset({1})
+    assert find_support(p, surf, nm, prompted=frozenset({0, 1})) == frozenset({0})
 
 
 def test_a_thin_plate_lying_on_the_table_is_not_the_table() -> None:
