@@ -105,14 +105,22 @@ def _step_along(pu: FloatArray, outward: FloatArray, up: Surface, low: Surface, 
     across = np.cross(n, u)
     if float((outward - c) @ across) < 0:
         across = -across  # from the upper plate towards the lower one
-    # the edge face must be seen: the camera on its outer side, at under 75 degrees
-    # (somewhere along it: the view turns along a long edge; the view clip keeps the stretch where it is seen)
+    # the edge face is seen when the camera is on its outer side at under 75 degrees (somewhere along it: the
+    # view turns along a long edge; the view clip keeps the stretch where it is seen); where it is not (a lap
+    # seen from above, or from the upper plate's side), the upper plate's boundary places the edge
     view = -pu / np.linalg.norm(pu, axis=1, keepdims=True)
-    if float(np.max(view @ across)) < np.cos(sp.max_incidence_rad):
-        return None
+    face_seen = float(np.max(view @ across)) >= np.cos(sp.max_incidence_rad)
+    if not face_seen:
+        # the seam is the edge face's foot: seen from the upper plate's side, the face hides it and a strip of
+        # the lower plate beside it (an occluding edge, a plate's rim over what lies beyond); it is placed by
+        # the boundary only where that strip is under a sample spacing wide (the face seen edge-on)
+        hidden = h * np.maximum(-(view @ across), 0.0) / np.maximum(view @ n, 1e-6)
+        if float(median(hidden)) > float(noise_full.spacing_m(float(median(pu[:, 2])))):
+            return None
     tu = (pu - c) @ u
     edge = _edge_offset(full, intr, noise_full, up, low, c, u, across, h, sp,
-                        span=(float(tu.min()) - 0.01, float(tu.max()) + 0.01), read=read)  # fmt: skip
+                        span=(float(tu.min()) - 0.01, float(tu.max()) + 0.01), read=read,
+                        boundary=not face_seen)  # fmt: skip
     if edge is None:
         return None
     off, slope, t_lo, t_hi, n_pts, low_offset = edge
@@ -122,7 +130,8 @@ def _step_along(pu: FloatArray, outward: FloatArray, up: Surface, low: Surface, 
     pts = pts - np.outer(pts @ n + low_offset, n)  # dropped onto the lower plate
     joint: Joint = "lap" if h <= 0.014 else "fillet"
     return SeamCurve("linear", joint, pts, np.tile(low.normal, (2, 1)), np.tile(across, (2, 1)),
-                     (low.label, up.label), n_pts, max(up.rms_m, low.rms_m))  # fmt: skip
+                     (low.label, up.label), n_pts, max(up.rms_m, low.rms_m),
+                     from_boundary=not face_seen)  # fmt: skip
 
 
 def _same_line(a: SeamCurve, b: SeamCurve, *, within_m: float = 0.002) -> bool:
@@ -188,10 +197,12 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
                  c: FloatArray, u: FloatArray, across: FloatArray, h: float, sp: StepParams, *,
                  span: tuple[float, float],
                  read: NDArray[np.bool_] | None = None,
+                 boundary: bool = False,
                  ) -> tuple[float, float, float, float, int, float] | None:  # fmt: skip
     """Where the upper plate's edge face stands (offset along ``across`` from ``c``: ``off + slope * t``), the
     stretch along ``u`` over which both plates are there, the count of points that place it, and the lower
-    plate's offset beside it (:func:`_low_offset`), from full-resolution points near the edge."""
+    plate's offset beside it (:func:`_low_offset`), from full-resolution points near the edge. ``boundary``:
+    the edge face is not seen, and the upper plate's boundary places the edge (:func:`_boundary_line`)."""
     from perception.fine.refine import near_points
 
     # a box around the contact, grown along the edge: the work image's contact decides the search band
@@ -217,6 +228,8 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     # the upper plate's side of the middle to the lower's (a few of the lower plate's points lie within the
     # upper's band, and its outermost points would be theirs)
     close = bool(np.any(band < sp.on_plane_sigma * sig))
+    if boundary and close:
+        return None  # plates within each other's noise bands, and no edge face: nothing tells the step apart
     edge_up = _crossing(a_off, r_low > 0.5 * h) if close else float(np.percentile(a_off[on_up], 98))
     near_up = on_up & (a_off > edge_up - 0.004)
     near_low = on_low & (a_off > edge_up) & (a_off < edge_up + 0.008)
@@ -243,7 +256,20 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     t_hi = min(float(t[near_up & inside].max()), float(t[near_low & inside].max()))
     face = on_face & (t >= t_lo) & (t <= t_hi)
     slope = 0.0
-    if close:
+    if boundary:
+        spacing = float(median(noise.spacing_m(q[:, 2])))
+        tol = spacing + float(median(sig))
+        line = _boundary_line(a_off[on_up], t[on_up], (t_lo, t_hi), edge_up, spacing, sp.bin_m, tol)
+        if line is None:
+            return None
+        off, slope = line
+        # the foot seen: the lower plate's points come up to the edge (within two samples and the noise) along
+        # most of it, as beside a plate's cut edge seen edge-on; a parallel fragment beyond a ragged rim, or a
+        # surface further off under an overhang, starts further out
+        if not _foot_seen(a_off[on_low] - (off + slope * t[on_low]), t[on_low], (t_lo, t_hi), sp.bin_m,
+                          2.0 * spacing + float(median(sig))):  # fmt: skip
+            return None
+    elif close:
         # the face's points are not told from either plate's noise: the crossing, found along the edge in
         # pieces, places and turns it
         off, slope = _crossing_line(a_off, t, r_low > 0.5 * h, (t_lo, t_hi), edge_up, sp.band_m)
@@ -305,6 +331,43 @@ def _face_line(tf: FloatArray, af: FloatArray) -> tuple[float, float]:
         if keep.sum() < 10:
             break
     return float(sol[0]), float(sol[1])
+
+
+def _boundary_line(a_up: FloatArray, t_up: FloatArray, span: tuple[float, float], edge: float, spacing_m: float,
+                   bin_m: float, tol_m: float) -> tuple[float, float] | None:  # fmt: skip
+    """The upper plate's edge as a line ``a_off = off + slope * t`` from its own points (``a_up`` across the
+    edge, ``t_up`` along it) when its edge face is not seen: the outermost point of each ``bin_m`` bin of the
+    ``span`` within a centimetre of ``edge``, fitted robustly (:func:`_face_line`), moved out by half the sample
+    spacing (the edge lies between the last sample on the plate and the next one, which is off it). None when
+    fewer than five bins hold points, or the outermost points scatter about the line by more than ``tol_m``
+    (robust sigma): a ragged rim is not a plate's cut edge."""
+    near = (np.abs(a_up - edge) <= 0.01) & (t_up >= span[0]) & (t_up <= span[1])
+    a_up, t_up = a_up[near], t_up[near]
+    k = ((t_up - span[0]) / bin_m).astype(np.int64)
+    order = np.lexsort((-a_up, k))
+    first = np.r_[True, k[order][1:] != k[order][:-1]] if len(order) else np.zeros(0, bool)
+    tops = order[first]  # the outermost point of each bin
+    if len(tops) < 5:
+        return None
+    off, slope = _face_line(t_up[tops], a_up[tops])
+    res = a_up[tops] - (off + slope * t_up[tops])
+    if 1.4826 * float(median(np.abs(res - median(res)))) > tol_m:
+        return None
+    return off + 0.5 * spacing_m, slope
+
+
+def _foot_seen(a_rel: FloatArray, t_low: FloatArray, span: tuple[float, float], bin_m: float, reach_m: float,
+               share: float = 0.6) -> bool:  # fmt: skip
+    """Whether in ``share`` of the ``bin_m`` bins of ``span`` that hold lower-plate points beyond the edge
+    (``a_rel`` > 0, within a centimetre), the nearest of them lies within ``reach_m`` of it."""
+    beyond = (a_rel > 0) & (a_rel <= 0.01) & (t_low >= span[0]) & (t_low <= span[1])
+    if beyond.sum() < 10:
+        return False
+    k = ((t_low[beyond] - span[0]) / bin_m).astype(np.int64)
+    nearest = np.full(int(k.max()) + 1, np.inf)
+    np.minimum.at(nearest, k, a_rel[beyond])
+    held = np.isfinite(nearest)
+    return bool(np.mean(nearest[held] <= reach_m) >= share)
 
 
 def _clean_step(a_rel: FloatArray, upper: NDArray[np.bool_], along: NDArray[np.bool_], band_m: float,

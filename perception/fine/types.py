@@ -93,7 +93,9 @@ class Pair:
 @dataclass(frozen=True)
 class SeamCurve:
     """A seam before path sampling: (N, 3) centre line, (N, 3) outward unit normals of its two surfaces,
-    its kind and joint, the surfaces it was built from, and how well it is supported."""
+    its kind and joint, the surfaces it was built from, and how well it is supported. ``from_boundary``: a lap
+    or step whose edge face this shot does not see, placed by the upper plate's boundary (``surfaces`` is
+    (lower, upper)): it is seen where both plates' tops are."""
 
     kind: Literal["linear", "curved"]
     joint: Joint
@@ -104,3 +106,4 @@ class SeamCurve:
     support: int
     rms_m: float
     gap_m: float = 0.0
+    from_boundary: bool = False

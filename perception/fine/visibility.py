@@ -70,6 +70,8 @@ def clip_to_view(
         nb = np.column_stack([np.interp(dense, src, s.normals_b[:, k]) for k in range(3)])
         na /= np.linalg.norm(na, axis=1, keepdims=True)
         nb /= np.linalg.norm(nb, axis=1, keepdims=True)
+        if s.from_boundary and surfaces is not None:  # located from the upper plate's top, not its edge face
+            nb = np.tile(surfaces.surfaces[s.surfaces[1]].normal, (len(pts), 1))
         view = -pts / np.linalg.norm(pts, axis=1, keepdims=True)  # towards the camera at the origin
         ok = ((na * view).sum(axis=1) > np.cos(lim_a)) & ((nb * view).sum(axis=1) > np.cos(lim_b))
         for a, b in covered_runs(ok, 0):
