@@ -239,36 +239,18 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     # as the upper one's 4 mm inside it (a far face seen past a near one's edge shows in a sliver)
     if near_low.sum() < near_up.sum():
         return None
-    lo, hi = float(min(t[near_up].min(), t[near_low].min())), float(max(t[near_up].max(), t[near_low].max()))
-    nb = max(1, int(np.ceil((hi - lo) / sp.bin_m)))
-
-    def cover(m: NDArray[np.bool_]) -> NDArray[np.bool_]:
-        return np.bincount(np.clip(((t[m] - lo) / sp.bin_m).astype(int), 0, nb - 1), minlength=nb) >= 2
-
-    runs = covered_runs(cover(near_up) & cover(near_low), 4)
-    if not runs:
+    both = _both_plates_along(t, near_up, near_low, sp.bin_m)
+    if both is None:
         return None
-    r0, r1 = max(runs, key=lambda r: r[1] - r[0])
-    # the ends: the outermost points of both plates inside the covered run (not its bins' edges, up to a
-    # bin beyond them)
-    inside = (t >= lo + r0 * sp.bin_m) & (t <= lo + r1 * sp.bin_m)
-    t_lo = max(float(t[near_up & inside].min()), float(t[near_low & inside].min()))
-    t_hi = min(float(t[near_up & inside].max()), float(t[near_low & inside].max()))
+    t_lo, t_hi = both
     face = on_face & (t >= t_lo) & (t <= t_hi)
     slope = 0.0
     if boundary:
-        spacing = float(median(noise.spacing_m(q[:, 2])))
-        tol = spacing + float(median(sig))
-        line = _boundary_line(a_off[on_up], t[on_up], (t_lo, t_hi), edge_up, spacing, sp.bin_m, tol)
+        line = _boundary_edge(a_off, t, on_up, on_low, (t_lo, t_hi), edge_up,
+                              float(median(noise.spacing_m(q[:, 2]))), float(median(sig)), sp.bin_m)  # fmt: skip
         if line is None:
             return None
         off, slope = line
-        # the foot seen: the lower plate's points come up to the edge (within two samples and the noise) along
-        # most of it, as beside a plate's cut edge seen edge-on; a parallel fragment beyond a ragged rim, or a
-        # surface further off under an overhang, starts further out
-        if not _foot_seen(a_off[on_low] - (off + slope * t[on_low]), t[on_low], (t_lo, t_hi), sp.bin_m,
-                          2.0 * spacing + float(median(sig))):  # fmt: skip
-            return None
     elif close:
         # the face's points are not told from either plate's noise: the crossing, found along the edge in
         # pieces, places and turns it
@@ -288,6 +270,44 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     beside = on_low & (t >= t_lo) & (t <= t_hi)
     beside &= a_off - (off + slope * t) > 3.0 * sig + noise.spacing_m(q[:, 2])
     return off, slope, t_lo, t_hi, int(near_up.sum() + near_low.sum()), _low_offset(q[beside], low)
+
+
+def _both_plates_along(t: FloatArray, near_up: NDArray[np.bool_], near_low: NDArray[np.bool_],
+                       bin_m: float) -> tuple[float, float] | None:  # fmt: skip
+    """The stretch along the edge (positions ``t``) over which the upper plate's points near it
+    (``near_up``) and the lower plate's beside it (``near_low``) both are: the longest run of ``bin_m`` bins
+    holding two of each, ended at the outermost points of both plates inside it (not its bins' edges, up to a
+    bin beyond them); None when no run is four bins long."""
+    lo, hi = float(min(t[near_up].min(), t[near_low].min())), float(max(t[near_up].max(), t[near_low].max()))
+    nb = max(1, int(np.ceil((hi - lo) / bin_m)))
+
+    def cover(m: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        return np.bincount(np.clip(((t[m] - lo) / bin_m).astype(int), 0, nb - 1), minlength=nb) >= 2
+
+    runs = covered_runs(cover(near_up) & cover(near_low), 4)
+    if not runs:
+        return None
+    r0, r1 = max(runs, key=lambda r: r[1] - r[0])
+    inside = (t >= lo + r0 * bin_m) & (t <= lo + r1 * bin_m)
+    t_lo = max(float(t[near_up & inside].min()), float(t[near_low & inside].min()))
+    t_hi = min(float(t[near_up & inside].max()), float(t[near_low & inside].max()))
+    return t_lo, t_hi
+
+
+def _boundary_edge(a_off: FloatArray, t: FloatArray, on_up: NDArray[np.bool_], on_low: NDArray[np.bool_],
+                   span: tuple[float, float], edge_up: float, spacing: float, sigma: float,
+                   bin_m: float) -> tuple[float, float] | None:  # fmt: skip
+    """The edge of an upper plate whose edge face is not seen, as ``(off, slope)`` across it: its boundary
+    (:func:`_boundary_line`), taken only where the foot is seen: the lower plate's points come up to the edge
+    (within two samples and the noise ``sigma``) along most of it, as beside a plate's cut edge seen edge-on; a
+    parallel fragment beyond a ragged rim, or a surface further off under an overhang, starts further out."""
+    line = _boundary_line(a_off[on_up], t[on_up], span, edge_up, spacing, bin_m, spacing + sigma)
+    if line is None:
+        return None
+    off, slope = line
+    if not _foot_seen(a_off[on_low] - (off + slope * t[on_low]), t[on_low], span, bin_m, 2.0 * spacing + sigma):
+        return None
+    return off, slope
 
 
 def _low_offset(q: FloatArray, low: Surface) -> float:
