@@ -352,22 +352,8 @@ class DaemonSoak:
                 waiting = [s.job_id for s in self.outstanding]
                 raise RuntimeError(f"no job finished for {self.stall_s:.0f} s; waiting for {waiting}")
             time.sleep(0.1)
-        rss, threads = self._settled_status()
+        rss, threads = self.daemon.settled_status()
         self.result.idle_samples.append(Sample(self.finished, time.monotonic() - self.t0, rss, threads))
-
-    def _settled_status(self, *, hold_s: float = 0.5, limit_s: float = 5.0) -> tuple[float, int]:
-        """The idle daemon's (RSS, threads) once its thread count has held for ``hold_s``: the last requests'
-        handler threads end some time after their answer, later on a loaded machine (a fixed 0.3 s wait saw
-        one still alive under CI load). A leaked thread never ends, so it still shows after ``limit_s``."""
-        rss, threads = self.daemon.proc_status()
-        t_end = time.monotonic() + limit_s
-        held_since = time.monotonic()
-        while time.monotonic() < t_end and time.monotonic() - held_since < hold_s:
-            time.sleep(0.1)
-            rss, now = self.daemon.proc_status()
-            if now != threads:
-                threads, held_since = now, time.monotonic()
-        return rss, threads
 
     # ------------------------------------------------------------------------------------------ checks
     def check_api(self) -> None:

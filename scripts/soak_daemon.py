@@ -87,6 +87,20 @@ class ServedDaemon:
             fields[name] = rest.split()
         return int(fields["VmRSS"][0]) / 1024.0, int(fields["Threads"][0])
 
+    def settled_status(self, *, hold_s: float = 0.5, limit_s: float = 5.0) -> tuple[float, int]:
+        """The daemon's (RSS, threads) once its thread count has held for ``hold_s``: the last requests'
+        handler threads end some time after their answer, later on a loaded machine (a fixed 0.3 s wait saw
+        one still alive under CI load). A leaked thread never ends, so it still shows after ``limit_s``."""
+        rss, threads = self.proc_status()
+        t_end = time.monotonic() + limit_s
+        held_since = time.monotonic()
+        while time.monotonic() < t_end and time.monotonic() - held_since < hold_s:
+            time.sleep(0.1)
+            rss, now = self.proc_status()
+            if now != threads:
+                threads, held_since = now, time.monotonic()
+        return rss, threads
+
     def stop(self, timeout_s: float = 60.0) -> int:
         """SIGTERM, then wait for the exit code (after ``timeout_s`` SIGUSR1, so that the daemon's log shows where
         each of its threads waits, then SIGKILL: the code is negative). :attr:`exit_s` says how long it took."""
