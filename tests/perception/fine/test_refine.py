@@ -12,7 +12,14 @@ from perception.evaluate import point_to_polyline_distance
 from perception.fine.adjacency import adjacent_pairs
 from perception.fine.folds import fold_seams
 from perception.fine.noise import estimate_noise, local_planes
-from perception.fine.refine import RefineParams, _noise_ends, _robust_plane_fit, _supported_ends, refine_seams
+from perception.fine.refine import (
+    RefineParams,
+    _noise_ends,
+    _robust_plane_fit,
+    _seen_faces,
+    _supported_ends,
+    refine_seams,
+)
 from perception.fine.support import find_support
 from perception.fine.surfaces import _fit_plane, segment_surfaces
 from perception.fine.types import NoiseModel, SeamCurve, Surface
@@ -296,3 +303,59 @@ def test_a_fold_beyond_where_its_faces_are_is_not_a_seam() -> None:
     refined, _ = refine_seams([past, fillet], res.capture.points_camera(), res.capture.intrinsics, surf, nm)
     assert len(refined) == 1
     assert np.median(point_to_polyline_distance(refined[0].points, gt.points_camera)) < 2e-4
+
+
+def _v_groove_rays(beta_deg: float, bevel_m: float, sigma_m: float) -> tuple[np.ndarray, ...]:
+    """A V-groove along y at 0.8 m, its root at x = 0.1 m, bevels ``bevel_m`` long rising towards the camera at
+    ``beta_deg`` from the camera's axis to the plates' tops, seen through a grid of pixel rays: each ray's
+    first face (bevel 0 or 1, 2 a plate's top) and its point moved along the ray by noise of ``sigma_m``; the
+    two bevels as surfaces, the root, and each bevel's direction up from the root."""
+    b = np.radians(beta_deg)
+    root = np.array([0.1, 0.0, 0.8])
+    ups = [np.array([-np.sin(b), 0.0, -np.cos(b)]), np.array([np.sin(b), 0.0, -np.cos(b)])]
+    normals = [np.array([-np.cos(b), 0.0, np.sin(b)]), np.array([np.cos(b), 0.0, np.sin(b)])]
+    normals = [n if n @ root < 0 else -n for n in normals]  # towards the camera
+    xt, yt = np.meshgrid(np.linspace(0.1 / 0.8 - 0.03, 0.1 / 0.8 + 0.03, 600), np.linspace(-0.02, 0.02, 20))
+    ray = np.column_stack([xt.ravel(), yt.ravel(), np.ones(xt.size)])
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    lam = []
+    for n, up in zip(normals, ups, strict=True):
+        with np.errstate(divide="ignore"):
+            lam_i = (root @ n) / (ray @ n)
+        s = (lam_i[:, None] * ray - root) @ up
+        lam.append(np.where((lam_i > 0) & (s >= 0) & (s <= bevel_m), lam_i, np.inf))
+    top_z = root[2] - bevel_m * np.cos(b)
+    lam_top = top_z / ray[:, 2]
+    beyond = np.abs(lam_top * ray[:, 0] - root[0]) > bevel_m * np.sin(b)
+    lam.append(np.where(beyond, lam_top, np.inf))
+    first = np.argmin(np.stack(lam), axis=0)
+    rng_m = np.min(np.stack(lam), axis=0)
+    noisy = ray * (rng_m + sigma_m * np.random.default_rng(5).standard_normal(len(rng_m)))[:, None]
+    faces = tuple(Surface(i, "plane", n, -float(n @ root), sigma_m, 1000, root + 0.5 * bevel_m * up, 0.8)
+                  for i, (n, up) in enumerate(zip(normals, ups, strict=True)))  # fmt: skip
+    return noisy, first, faces, root, ups
+
+
+def test_a_groove_point_belongs_to_the_bevel_its_ray_meets_first_whatever_its_noise() -> None:
+    # 1 mm of noise along the rays of a groove whose bevels are 10 mm long: the plane nearer the measured
+    # point is the wrong bevel for a share of the bevels' points (those the noise pushed across near the
+    # root), the bevel the ray meets first never is; a ray to a plate's top meets neither bevel within its
+    # reach
+    q, first, faces, root, ups = _v_groove_rays(30.0, 0.010, 0.001)
+    seen_a, seen_b = _seen_faces(q, faces, root, (ups[0], ups[1]), (0.010, 0.010))
+    assert np.array_equal(seen_a, first == 0) and np.array_equal(seen_b, first == 1)
+    bevel = first < 2
+    nearer_b = np.abs(q @ faces[1].normal + faces[1].offset) < np.abs(q @ faces[0].normal + faces[0].offset)
+    assert np.mean(nearer_b[bevel] != (first[bevel] == 1)) > 0.03  # 4.7% here
+
+
+def test_a_bevels_plane_past_its_reach_does_not_take_the_plates_top() -> None:
+    # the rays to the plates' tops meet a bevel's plane beyond where the bevel ends: with the bevels' reach
+    # they are neither bevel's; with the planes taken without end many would be
+    q, first, faces, root, ups = _v_groove_rays(30.0, 0.010, 0.0)
+    top = first == 2
+    assert top.sum() > 1000
+    seen_a, seen_b = _seen_faces(q, faces, root, (ups[0], ups[1]), (0.010, 0.010))
+    assert not (seen_a | seen_b)[top].any()
+    far_a, far_b = _seen_faces(q, faces, root, (ups[0], ups[1]), (np.inf, np.inf))
+    assert np.mean((far_a | far_b)[top]) > 0.3
