@@ -27,6 +27,8 @@ class GapParams:
     min_gap_m: float = 0.0002
     min_length_m: float = 0.015
     bin_m: float = 0.002
+    far_m: float = 0.008  # each plate reaches this far beyond its edge (as :class:`InnerGapParams`)
+    min_far_share: float = 0.6  # ... along this share of the seam
 
 
 def gap_seams(
@@ -100,6 +102,8 @@ def gap_seams(
             t0, t1 = _shared_span(ta, tb, lo + s0 * gp.bin_m, lo + s1 * gp.bin_m)
             if t1 - t0 < gp.min_length_m:
                 continue
+            if not _plates_reach(p, lab, (pair.a, pair.b), c, u, across, (edge_a, edge_b), (t0, t1), gp):
+                continue
             base = c + mid * across
             # the top surface: the plates' mean plane through the centre line
             base = base - (base @ n + 0.5 * (A.offset + B.offset)) * n
@@ -108,6 +112,26 @@ def gap_seams(
                                  (A.label, B.label), int(ca[s0:s1].sum() + cb[s0:s1].sum()), max(A.rms_m, B.rms_m),
                                  gap_m=width))  # fmt: skip
     return out
+
+
+def _plates_reach(p: FloatArray, lab: NDArray[np.int32], labels: tuple[int, int], c: FloatArray, u: FloatArray,
+                  across: FloatArray, edges: tuple[float, float], span: tuple[float, float],
+                  gp: GapParams) -> bool:  # fmt: skip
+    """Whether each of the two surfaces ``labels`` reaches ``far_m`` beyond its edge (``edges``: A's and B's,
+    across from A to B), in ``min_far_share`` of the 2 mm bins of ``span`` along the gap. A butt joint parts
+    two plates; a sliver of valid pixels inside a blob of specular holes, on the plate's own plane, is no
+    plate (zoo dev v_groove 170: a 16 mm "gap" between a plate and a 51-point sliver)."""
+    t0, t1 = span
+    nbins = max(1, int(np.ceil((t1 - t0) / gp.bin_m)))
+    for label, sign, edge in ((labels[0], -1.0, edges[0]), (labels[1], 1.0, edges[1])):
+        q = p[lab == label]
+        d = q - c
+        t, off = d @ u, sign * (d @ across - edge)
+        far = (t >= t0) & (t <= t1) & (off >= gp.far_m)
+        hit = np.bincount(np.clip(((t[far] - t0) / gp.bin_m).astype(int), 0, nbins - 1), minlength=nbins) > 0
+        if float(hit.mean()) < gp.min_far_share:
+            return False
+    return True
 
 
 def over_groove(butt: SeamCurve, grooves: list[SeamCurve], *, margin_m: float = 0.003) -> bool:

@@ -240,3 +240,33 @@ def test_the_far_plates_rim_pixels_pulled_deep_are_not_taken_for_the_face_seen_i
     samples = seam.points[0] + np.linspace(0, 1, 50)[:, None] * (seam.points[1] - seam.points[0])
     err = point_to_polyline_distance(samples, truth)
     assert seam.joint == "butt" and float(err.max()) < 0.2e-3
+
+
+def test_a_butt_gap_parts_two_plates_not_a_plate_and_a_sliver_of_it() -> None:
+    # a plate on x < 48 mm and a gap to x = 50 mm, on a 1 mm grid; beyond it either a second plate 50 mm wide
+    # or a sliver 1 mm wide on the same plane (valid pixels left inside a blob of specular holes, as on zoo
+    # dev v_groove 170): the sliver does not reach far_m beyond its edge, the plate does
+    from perception.fine.gaps import GapParams, _plates_reach
+
+    x, y = np.meshgrid(np.arange(100) * 0.001, np.arange(60) * 0.001)
+    p = np.stack([x, y, np.full_like(x, 0.5)], axis=-1)
+    c, u, across = np.array([0.049, 0.03, 0.5]), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    edges, span = (-0.001, 0.001), (-0.025, 0.025)
+    lab = np.full(x.shape, -1, np.int32)
+    lab[x < 0.0475] = 0
+    plate = lab.copy()
+    plate[x > 0.0505] = 1
+    sliver = lab.copy()
+    sliver[(x > 0.0505) & (x < 0.0515)] = 1
+    assert _plates_reach(p, plate, (0, 1), c, u, across, edges, span, GapParams())
+    assert not _plates_reach(p, sliver, (0, 1), c, u, across, edges, span, GapParams())
+
+
+def test_no_butt_gap_between_a_plate_and_a_sliver_in_its_specular_holes() -> None:
+    # zoo dev v_groove 170: the groove, and no 16 mm "butt" beside it between the plate and a 51-point sliver
+    from perception.detect import DetectParams
+    from perception.detect_surfaces import detect_surfaces
+    from sim_fakes.zoo import draw_capture
+
+    res = detect_surfaces(draw_capture("v_groove", 170).result.capture, DetectParams(method="surfaces"))
+    assert [s.joint for s in res.seams] == ["v_groove"]
