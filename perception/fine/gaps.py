@@ -100,9 +100,8 @@ def gap_seams(
         for s0, s1 in covered_runs((ca > 0) & (cb > 0), 4):
             # the ends where both plates' facing points still are (the bins round them out by up to one)
             t0, t1 = _shared_span(ta, tb, lo + s0 * gp.bin_m, lo + s1 * gp.bin_m)
-            if t1 - t0 < gp.min_length_m:
-                continue
-            if not _plates_reach(p, lab, (pair.a, pair.b), c, u, across, (edge_a, edge_b), (t0, t1), gp):
+            if t1 - t0 < gp.min_length_m or not _plates_reach(p, lab, (pair.a, pair.b), c, u, across,
+                                                              (edge_a, edge_b), (t0, t1), gp):  # fmt: skip
                 continue
             base = c + mid * across
             # the top surface: the plates' mean plane through the centre line
