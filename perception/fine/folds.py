@@ -30,6 +30,11 @@ class FoldParams:
     lap_height_m: float = 0.014  # a standing face this narrow across the seam is a lap edge
 
 
+def rays_onto(x: FloatArray, s: Surface) -> FloatArray:
+    """Where the camera's rays through the (N, 3) points or directions ``x`` meet plane ``s``."""
+    return np.asarray(x * (-s.offset / (x @ s.normal))[:, None])
+
+
 def plane_line(a: Surface, b: Surface, near: FloatArray,
                along: FloatArray | None = None) -> tuple[FloatArray, FloatArray] | None:  # fmt: skip
     """Point (nearest ``near``) and unit direction of the intersection of two planes, the direction turned

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
-from perception.fine.folds import contact_points
+from perception.fine.folds import contact_points, rays_onto
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
 from perception.fits import median
@@ -255,7 +255,7 @@ def _gaps_from_holes(hole: NDArray[np.bool_], px: tuple[NDArray[np.int64], NDArr
     # the hole pixels' rays (only theirs: the whole image's would cost more than the rest of the step)
     uu, vv = px[0][hole].astype(np.float64), px[1][hole].astype(np.float64)
     r = np.stack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy, np.ones_like(uu)], axis=1)
-    g_all = _rays_onto(r, s)  # the hole pixels' rays met with the plate's plane
+    g_all = rays_onto(r, s)  # the hole pixels' rays met with the plate's plane
     lines = _gap_lines(g_all, s.normal, gp, rng=np.random.default_rng(0))
     if not lines:
         return []
@@ -266,11 +266,6 @@ def _gaps_from_holes(hole: NDArray[np.bool_], px: tuple[NDArray[np.int64], NDArr
         if seam is not None:
             out.append(seam)
     return out
-
-
-def _rays_onto(x: FloatArray, s: Surface) -> FloatArray:
-    """Where the camera's rays through the (N, 3) points or directions ``x`` meet plane ``s``."""
-    return np.asarray(x * (-s.offset / (x @ s.normal))[:, None])
 
 
 DARK_SIGMA = 6.0  # a dark line's pixel is darker than both sides by this many sigmas of the plate's own response
@@ -443,7 +438,7 @@ def _face_in_gap(allp: FloatArray, c3: FloatArray, u: FloatArray, across: FloatA
     m = (t >= span[0]) & (t <= span[1]) & (np.abs(a - edge[0]) <= 0.0015) & (r < -3.0 * sig) & (r > -12.0 * sig)
     if m.sum() < 10:
         return None
-    top = _rays_onto(allp[m], s)  # where their rays cross the top's plane
+    top = rays_onto(allp[m], s)  # where their rays cross the top's plane
     crossing = float(median((top - c3) @ across))
     return float(median(a[m])) if min(edge) < crossing < max(edge) else None
 

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
 from perception.fine.cylinder import axis_basis, circle_across
-from perception.fine.folds import line_coords, plane_line, ring_points
+from perception.fine.folds import line_coords, plane_line, rays_onto, ring_points
 from perception.fine.root import open_root
 from perception.fine.runs import covered_runs, trim_stray_tails
 from perception.fine.surfaces import _fit_plane, fit_plane_rows
@@ -400,12 +400,12 @@ def _seen_faces(q: FloatArray, planes: tuple[Surface, Surface], line0: FloatArra
     rng = np.sqrt(np.einsum("ij,ij->i", q, q))
     hit_range, on_side = [], []
     for S, v, reach in zip(planes, across, reaches, strict=True):
-        cos = (q @ S.normal) / np.maximum(rng, 1e-12)
         with np.errstate(divide="ignore", invalid="ignore"):
-            lam = np.where(np.abs(cos) > 1e-9, -S.offset / cos, np.inf)
-        ok = np.isfinite(lam) & (lam > 0.0)
-        hit = q * np.where(ok, lam / np.maximum(rng, 1e-12), 0.0)[:, None]
-        hit_range.append(np.where(ok, lam, np.inf))
+            hit = rays_onto(q, S)
+        # in front of the camera, and not a ray along the plane
+        ok = (np.abs(q @ S.normal) > 1e-9 * rng) & np.isfinite(hit[:, 0]) & (np.einsum("ij,ij->i", hit, q) > 0.0)
+        hit[~ok] = 0.0
+        hit_range.append(np.where(ok, np.sqrt(np.einsum("ij,ij->i", hit, hit)), np.inf))
         d_hit = (hit - line0) @ v
         on_side.append(ok & (d_hit > 0.0) & (d_hit <= reach))
     first_a = on_side[0] & (~on_side[1] | (hit_range[0] <= hit_range[1]))
