@@ -48,6 +48,9 @@ class SurfaceParams:
     narrow_min_width_px: float = 0.8
 
 
+EDGE_ON_RAD = np.radians(5.0)  # a plane whose normal is this near square to the camera's ray is seen edge-on
+
+
 def _fit_plane(p: FloatArray, weights: FloatArray | None = None) -> tuple[FloatArray, float, float]:
     """Least-squares plane of (N, 3) points, each weighted by ``weights`` when given: unit normal (towards the
     camera), offset, RMS residual."""
@@ -509,23 +512,27 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
                      sp: SurfaceParams) -> tuple[NDArray[np.int32], list[Surface]]:  # fmt: skip
     """Neighbouring planes that are strips of one cylinder become that cylinder. A pipe of small radius seen
     from afar turns so fast that the fold test cuts it into strips a few pixels wide, each flat within the
-    noise: neighbours whose normals differ by less than a fold and whose union one cylinder fits are one."""
+    noise: neighbours whose normals differ by less than a fold and whose union one cylinder fits are one. A
+    plane seen edge-on (its normal within :data:`EDGE_ON_RAD` of square to the camera's ray) is no strip: the
+    camera cannot measure a surface along its rays, and such a plane is a veil of mixed pixels past an
+    occluding edge (a flat wall and the veil behind its silhouette fit one wide cylinder)."""
     from perception.fine.adjacency import adjacent_pairs, plane_partners
 
-    plane_ids = [s.label for s in surfaces if s.kind == "plane"]
+    edge_on = {s.label for s in surfaces if s.kind == "plane" and _edge_on(s)}
+    plane_ids = [s.label for s in surfaces if s.kind == "plane" and s.label not in edge_on]
     if len(plane_ids) < 2:
         return labels, surfaces
     z_typ = float(median([s.z_m for s in surfaces]))
     lo_cos, hi_cos = np.cos(np.radians(60.0)), np.cos(sp.merge_angle_rad)
     surf = SurfaceSet(labels, 1, tuple(surfaces))
-    pairs = adjacent_pairs(surf, noise, reach_m=4.0 * float(noise.spacing_m(z_typ)),
-                           among=plane_partners(surf, min_cos=float(lo_cos), max_cos=float(hi_cos)))  # fmt: skip
+    among = plane_partners(surf, min_cos=float(lo_cos), max_cos=float(hi_cos), exclude=edge_on)
+    pairs = adjacent_pairs(surf, noise, reach_m=4.0 * float(noise.spacing_m(z_typ)), among=among)
     groups_of = Groups(plane_ids)
     find = groups_of.find
 
     for pr in pairs:
         A, B = surfaces[pr.a], surfaces[pr.b]
-        if A.kind != "plane" or B.kind != "plane" or not lo_cos < float(A.normal @ B.normal) < hi_cos:
+        if pr.a not in among or pr.b not in among or not lo_cos < float(A.normal @ B.normal) < hi_cos:
             continue
         # strips of one convex (or one concave) surface: each lies behind (or in front of) the other's plane
         sa, sb = float(A.residual(B.centroid[None])[0]), float(B.residual(A.centroid[None])[0])
@@ -562,6 +569,11 @@ def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Su
     for k, s in enumerate(keep):
         remap[s.label] = k
     return remap[lab], [replace(s, label=k) for k, s in enumerate(keep)]
+
+
+def _edge_on(s: Surface) -> bool:
+    """Whether plane ``s``'s normal is within :data:`EDGE_ON_RAD` of square to the ray to its centroid."""
+    return bool(abs(float(s.normal @ s.centroid)) < np.sin(EDGE_ON_RAD) * float(np.linalg.norm(s.centroid)))
 
 
 def _merge_coaxial(p: FloatArray, lab: NDArray[np.int32], surfaces: list[Surface], gone: set[int],
