@@ -132,8 +132,9 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
     qa, qb = pa[near_a][(ta >= lo) & (ta <= hi)], pb[near_b][(tb >= lo) & (tb <= hi)]
     if len(qa) < 3 or len(qb) < 3:
         return []
-    sa, sb = float(median(B.residual(qa))), float(median(A.residual(qb)))
-    if min(sa, sb) <= 0.0 or max(sa, sb) < fp.concave_sigma * sig:
+    ra, rb = B.residual(qa), A.residual(qb)
+    sa, sb = float(median(ra)), float(median(rb))
+    if min(sa, sb) <= 0.0 or max(np.percentile(ra, 75), np.percentile(rb, 75)) < fp.concave_sigma * sig:
         return []
     nb_ = int(np.ceil((hi - lo) / fp.bin_m))
     ca = np.bincount(np.clip(((ta - lo) / fp.bin_m).astype(int), 0, nb_ - 1)[(ta >= lo) & (ta <= hi)], minlength=nb_)

@@ -66,3 +66,55 @@ def test_joint_types_follow_how_the_faces_stand() -> None:
     # walls leaning 10 degrees are still an inside corner
     lean = np.radians(10.0)
     assert joint_type(np.array([np.cos(lean), 0.0, np.sin(lean)]), y, up, 0.1, 0.014) == "inside_corner"
+
+
+def _rib_corner(far_share: float, *, convex: bool = False, seed: int = 0):
+    """A floor (z = 0) and a rib's face (x = 0, standing up) meeting along the y axis, seen from (0.5, 0, 0.6)
+    with 1.5 mm of noise: the two planes (towards the camera), each side's contact points (the floor's within 8
+    mm of the corner, ``far_share`` of them floor seen past the rib's top, 5 to 12 mm behind its face; the rib's
+    in the blurred band 3 mm up from the corner) and the corner's 80 mm. With ``convex`` the rib's face is its
+    far side: a convex edge. In the camera frame."""
+    from perception.fine.types import Surface
+    from perception.transforms import invert_X, look_at_X, transform_points
+
+    rng = np.random.default_rng(seed)
+    X = invert_X(look_at_X((0.5, 0.0, 0.6), (0.0, 0.0, 0.0)))  # world -> camera
+    s = -1.0 if convex else 1.0  # the floor lies on the side of the rib its face looks to (concave)
+    n = 300
+    y = rng.uniform(-0.04, 0.04, n)
+    floor = np.column_stack([s * rng.uniform(0.0, 0.008, n), y, np.zeros(n)])
+    k = int(far_share * n)
+    floor[:k, 0] = -s * rng.uniform(0.005, 0.012, k)
+    rib = np.column_stack([np.zeros(n), y, rng.uniform(0.0, 0.003, n)])
+    pa, pb = (transform_points(X, q) for q in (floor, rib))
+    pa[:, 2] += 0.0015 * rng.standard_normal(n)
+    pb[:, 2] += 0.0015 * rng.standard_normal(n)
+    R, t = X[:3, :3], X[:3, 3]
+    planes = []
+    for label, (nw, q) in enumerate((((0.0, 0.0, 1.0), pa), ((1.0, 0.0, 0.0), pb))):
+        nc = R @ np.asarray(nw)
+        off = -float(nc @ t)  # the world plane through the origin, in the camera frame
+        planes.append(Surface(label, "plane", nc, off, 0.0015, n, q.mean(axis=0), float(q[:, 2].mean())))
+    return planes, pa, pb, transform_points(X, np.array([[0.0, -0.04, 0.0], [0.0, 0.04, 0.0]]))
+
+
+@pytest.mark.parametrize("far_share", [0.0, 0.4])
+def test_a_fold_is_concave_when_a_quarter_of_a_side_stands_clear_in_front_of_the_other(far_share: float) -> None:
+    # zoo dev ribs 35 (OAK-D-like at 0.87 m): the floor's contact pixels beside a rib's face hold the floor seen
+    # past the rib's top (behind the face); their median in front of the face fell under two sigma and the
+    # rib's fillet was missed. The medians in front of the other plane, and the upper quarter of one side
+    # clearly so, make a fold concave; a convex edge has both sides behind
+    from perception.fine.folds import FoldParams, _plane_pair
+    from perception.fine.types import NoiseModel
+
+    noise = NoiseModel(sigma_1m_m=0.0015 / 0.78**2, floor_m=5e-5, pixel_angle_rad=0.002)
+    for convex in (False, True):
+        (A, B), pa, pb, corner = _rib_corner(far_share, convex=convex)
+        grid, lab = pb[:, None, :], np.full((len(pb), 1), B.label, np.int32)
+        seams = _plane_pair(grid, lab, A, B, pa, pb, noise, FoldParams(), A.normal)
+        if convex:
+            assert seams == []
+        else:
+            (seam,) = seams  # on the corner line (the planes are exact; its ends to a bin) along most of its 80 mm
+            assert float(np.max(point_to_polyline_distance(seam.points, corner))) < 1e-4
+            assert float(np.linalg.norm(seam.points[-1] - seam.points[0])) > 0.07
