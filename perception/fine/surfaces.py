@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from perception.fine.cylinder import fit_cylinder, normals_follow, turns
 from perception.fine.groups import Groups
+from perception.fine.grow import grow
 from perception.fine.noise import LocalPlanes
 from perception.fine.parallel import split_parallel
 from perception.fine.types import NoiseModel, Surface, SurfaceSet
@@ -154,15 +155,6 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
             left = np.setdiff1d(left, piece, assume_unique=True)
             continue
         left = np.setdiff1d(left, inl, assume_unique=True)
-    return out
-
-
-def _shift(a: NDArray, dy: int, dx: int, fill: int | float) -> NDArray:
-    out = np.full_like(a, fill)
-    h, w = a.shape[:2]
-    ys, yd = (slice(0, h - dy), slice(dy, h)) if dy >= 0 else (slice(-dy, h), slice(0, h + dy))
-    xs, xd = (slice(0, w - dx), slice(dx, w)) if dx >= 0 else (slice(-dx, w), slice(0, w + dx))
-    out[yd, xd] = a[ys, xs]
     return out
 
 
@@ -326,18 +318,18 @@ def _complete(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface],
               sp: SurfaceParams) -> tuple[NDArray[np.int32], list[Surface]]:  # fmt: skip
     """The surfaces grown into the corner bands, narrow faces recovered, coplanar pieces and a pipe's strips
     merged."""
-    labels = _grow(p, labels, surfaces, sigma, sp)
+    labels = grow(p, labels, surfaces, sigma, within_sigma=sp.grow_sigma, rings=sp.grow_rings)
     # narrow faces (a bevel, a lap plate's edge, seen a few pixels wide) lose their middle to the fold cuts
     # of both their edges; what is left between the grown surfaces is fitted again on its own
     n_before = len(surfaces)
     labels = _recover_narrow(p, labels, surfaces, sigma, noise, sp, normals)
     if len(surfaces) > n_before:
-        labels = _grow(p, labels, surfaces, sigma, sp)
+        labels = grow(p, labels, surfaces, sigma, within_sigma=sp.grow_sigma, rings=sp.grow_rings)
     labels, surfaces = _merge_coplanar(p, labels, surfaces, noise, sp)
     n_before = len(surfaces)
     labels, surfaces = _merge_cylinders(p, labels, surfaces, normals, sigma, noise, sp)
     if len(surfaces) < n_before:
-        labels = _grow(p, labels, surfaces, sigma, sp)
+        labels = grow(p, labels, surfaces, sigma, within_sigma=sp.grow_sigma, rings=sp.grow_rings)
     return labels, surfaces
 
 
@@ -445,66 +437,6 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
         surfaces.append(Surface(k, "plane", nrm, d, rms, int(inl.sum()), mean_rows(q[inl]), zc))
         lab.reshape(-1)[idx[inl]] = k
     return lab
-
-
-def _grow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], sigma: FloatArray,
-          sp: SurfaceParams) -> NDArray[np.int32]:  # fmt: skip
-    """Ring by ring, unassigned valid pixels next to a surface join it when they lie on it within the noise
-    (the nearer surface wins where two could take a pixel). A pixel's chance changes only when a neighbour
-    joins a surface, so each ring looks only at the free pixels beside the last ring's."""
-    if not surfaces:
-        return labels
-    lab = labels.copy()
-    h, w = lab.shape
-    valid = np.isfinite(p[..., 2])
-    neighbours = ((0, -1), (0, 1), (-1, 0), (1, 0))  # the order ties are settled in
-    known = lab >= 0
-    beside = np.zeros_like(known)
-    for dy, dx in neighbours:
-        beside |= _shift(known, -dy, -dx, False)
-    ys, xs = np.nonzero(beside & valid & ~known)  # the first ring: every free pixel beside a surface
-    for _ in range(sp.grow_rings):
-        if len(ys) == 0:
-            break
-        q = p[ys, xs]
-        best = np.full(len(ys), np.inf)
-        best_lab = np.full(len(ys), -1, np.int32)
-        for dy, dx in neighbours:
-            ny, nx = ys + dy, xs + dx
-            ok = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
-            cand = np.full(len(ys), -1, np.int32)
-            cand[ok] = lab[ny[ok], nx[ok]]
-            res = np.full(len(ys), np.inf)
-            for s_lab in np.unique(cand[cand >= 0]):
-                sel = cand == s_lab
-                res[sel] = np.abs(surfaces[int(s_lab)].residual(q[sel]))
-            better = res < best
-            best[better] = res[better]
-            best_lab[better] = cand[better]
-        take = (best_lab >= 0) & (best <= sp.grow_sigma * sigma[ys, xs])
-        if not take.any():
-            break
-        lab[ys[take], xs[take]] = best_lab[take]
-        ys, xs = _free_beside(ys[take], xs[take], lab, valid, neighbours)  # the next ring
-    return lab
-
-
-def _free_beside(cy: NDArray[np.int64], cx: NDArray[np.int64], lab: NDArray[np.int32], valid: NDArray[np.bool_],
-                 neighbours: tuple[tuple[int, int], ...]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:  # fmt: skip
-    """The unlabelled valid pixels (rows, columns, in raster order) beside the pixels (cy, cx)."""
-    h, w = lab.shape
-    ys = np.concatenate([cy + dy for dy, _ in neighbours])
-    xs = np.concatenate([cx + dx for _, dx in neighbours])
-    inside = (ys >= 0) & (ys < h) & (xs >= 0) & (xs < w)
-    flat = ys[inside] * w + xs[inside]
-    if len(flat):  # np.unique's sorted distinct values, from marks over their range (no sort)
-        lo = int(flat.min())
-        mark = np.zeros(int(flat.max()) - lo + 1, bool)
-        mark[flat - lo] = True
-        flat = np.flatnonzero(mark) + lo
-    ys, xs = flat // w, flat % w
-    free = valid[ys, xs] & (lab[ys, xs] < 0)
-    return ys[free], xs[free]
 
 
 def _merge_cylinders(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], normals: FloatArray,
