@@ -187,7 +187,7 @@ def _full_resolution_steps(
         curves, _ = refine_seams(curves, organized, capture.intrinsics, surf, noise_full, read=read)
     with log.step("inner_gaps"):
         curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=skip,
-                                  color_rgb=capture.color_rgb)  # fmt: skip
+                                  color_rgb=capture.color_rgb, pairs=pairs, found=curves)  # fmt: skip
     with log.step("steps"):
         steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=skip,
                            read=read)  # fmt: skip

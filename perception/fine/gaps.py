@@ -7,7 +7,8 @@ shadow (a gap narrower than the depth sensor resolves still shows as one)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -199,50 +200,113 @@ def inner_gap_seams(
     support: frozenset[int],
     params: InnerGapParams | None = None,
     color_rgb: NDArray[np.uint8] | None = None,
+    pairs: tuple[Pair, ...] = (),
+    found: Sequence[SeamCurve] = (),
 ) -> list[SeamCurve]:
     """Butt gaps too narrow to split a plate at the work resolution: inside one plane's outline, at full
     resolution, a long thin line of pixels with no depth or depth behind the plane, with the plane on both
     sides of it all along. With the (H, W, 3) ``color_rgb`` registered to the depth, a pixel on a dark line
     (:func:`dark_line`) counts as seeing into the gap too: a gap narrower than the depth sensor resolves is
-    still a line of shadow in the image."""
-    import cv2
+    still a line of shadow in the image.
+
+    Two plates segmented apart across a gap narrower than a work-resolution sample (adjacent ``pairs`` of
+    planes, one plane within :class:`GapParams`' angle and step, with no butt seam between them among
+    ``found``) are looked in as one outline: the work-resolution test of :func:`gap_seams` cannot tell a gap
+    it does not sample from a seam of the segmentation; the full resolution can. Only a gap with one plate on
+    each side counts there."""
     from scipy import ndimage
 
     gp = params or InnerGapParams()
-    H, W = full.shape[:2]
     boxes = ndimage.find_objects(surfaces.labels + 1)  # each label's box at the work resolution, found once
+    dark: list[NDArray[np.int16]] = []  # the image's dark-line response, computed once when first needed
     out: list[SeamCurve] = []
-    response: NDArray[np.int16] | None = None
     for s in surfaces.surfaces:
         if s.kind != "plane" or s.label in support or s.label >= len(boxes) or boxes[s.label] is None:
             continue
-        window = _plane_window(surfaces, s.label, boxes[s.label], (H, W), gp)
-        if window is None:
-            continue
-        (y0, y1, x0, x1), filled, inner = window
-        # the plane's residual at the pixels of its closed outline only (the window's others are never read)
-        fy, fx = np.nonzero(filled)
-        pts = full[fy + y0, fx + x0].astype(np.float64)
-        z = pts[:, 2]
-        res = np.einsum("ik,k->i", np.nan_to_num(pts), s.normal) + s.offset
-        sig = noise_full.sigma_m(np.where(np.isfinite(z), z, s.z_m))
-        hole = inner[fy, fx] & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
-        on_plane = pts[np.isfinite(z) & (np.abs(res) <= 4.0 * sig)]
-        win = full[y0:y1, x0:x1]
-        px = (fx + x0, fy + y0)
-        found = _gaps_from_holes(hole, px, intr, s, on_plane, win, noise_full, gp)
-        if not found and color_rgb is not None:
-            # the depth shows no gap here: one narrower than the sensor resolves may still show as shadow (the
-            # depth places a gap it resolves better: seen obliquely, the shadow takes in the far edge's face)
-            if response is None:
-                response = dark_response(color_rgb)  # once, and only for a capture with a plane to look in
-            # a gap has its plate on both sides: a dark line along the outline (a fold's shadow) is not one
-            deep = cv2.erode(filled.astype(np.uint8), np.ones((2 * DARK_MARGIN_PX + 1,) * 2, np.uint8)).astype(bool)
-            dark = deep[fy, fx] & dark_line(response[y0:y1, x0:x1], filled)[fy, fx]
-            if (dark & ~hole).sum() >= 15:
-                found = _gaps_from_holes(hole | dark, px, intr, s, on_plane, win, noise_full, gp)
-        out += found
+        out += _outline_gaps(full, intr, surfaces, noise_full, s, (s.label,), boxes[s.label], gp, color_rgb, dark)
+    for a, b in _coplanar_pairs(surfaces, pairs, support, found):
+        box = tuple(slice(min(x.start, y.start), max(x.stop, y.stop)) for x, y in zip(boxes[a], boxes[b], strict=True))
+        big = max(surfaces.surfaces[a], surfaces.surfaces[b], key=lambda x: x.n_points)
+        for seam in _outline_gaps(full, intr, surfaces, noise_full, big, (a, b), box, gp, color_rgb, dark):
+            if _parts(seam, surfaces, a, b, intr):
+                out.append(replace(seam, surfaces=(a, b)))
     return out
+
+
+def _coplanar_pairs(surfaces: SurfaceSet, pairs: tuple[Pair, ...], support: frozenset[int],
+                    found: Sequence[SeamCurve]) -> list[tuple[int, int]]:  # fmt: skip
+    """The adjacent planes (neither in ``support``) that are one plane within :class:`GapParams`' angle and
+    step, with no butt seam between them among ``found``."""
+    gp = GapParams()
+    parted = {frozenset(c.surfaces) for c in found if c.joint == "butt"}
+    out = []
+    for pr in pairs:
+        A, B = surfaces.surfaces[pr.a], surfaces.surfaces[pr.b]
+        if pr.a in support or pr.b in support or A.kind != "plane" or B.kind != "plane":
+            continue
+        if float(A.normal @ B.normal) < np.cos(gp.max_angle_rad) or frozenset((pr.a, pr.b)) in parted:
+            continue
+        big, small = (A, B) if A.n_points >= B.n_points else (B, A)
+        if abs(float(big.residual(small.centroid[None])[0])) <= gp.max_step_m:
+            out.append((pr.a, pr.b))
+    return out
+
+
+def _parts(seam: SeamCurve, surfaces: SurfaceSet, a: int, b: int, intr: CameraIntrinsics) -> bool:
+    """Whether ``seam`` runs between surfaces ``a`` and ``b``: at the work resolution, the pixels a few
+    samples to one side of its middle half are mostly ``a``'s and those to the other side ``b``'s."""
+    f = surfaces.factor
+    p0, p1 = seam.points[0], seam.points[-1]
+    mid = p0 + np.linspace(0.25, 0.75, 9)[:, None] * (p1 - p0)
+    uv = intr.project(mid) / f
+    d = intr.project(p1[None])[0] / f - intr.project(p0[None])[0] / f
+    side = np.array([-d[1], d[0]]) / max(float(np.linalg.norm(d)), 1e-9)
+    h, w = surfaces.labels.shape
+    votes = []
+    for sign in (-1.0, 1.0):
+        q = np.round(uv + sign * 3.0 * side).astype(int)
+        ok = (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
+        lab = surfaces.labels[q[ok, 1], q[ok, 0]]
+        votes.append((float(np.mean(lab == a)) if lab.size else 0.0, float(np.mean(lab == b)) if lab.size else 0.0))
+    (a0, b0), (a1, b1) = votes
+    return (a0 > 0.5 and b1 > 0.5) or (b0 > 0.5 and a1 > 0.5)
+
+
+def _outline_gaps(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet, noise_full: NoiseModel,
+                  s: Surface, labels: tuple[int, ...], box: tuple[slice, ...], gp: InnerGapParams,
+                  color_rgb: NDArray[np.uint8] | None, dark: list[NDArray[np.int16]]) -> list[SeamCurve]:  # fmt: skip
+    """The butt seams in the closed outline of the surfaces ``labels`` (their work-resolution ``box``) on
+    plane ``s``: :func:`inner_gap_seams` for one outline. ``dark``: the image's dark-line response once
+    computed (appended to on first use)."""
+    import cv2
+
+    H, W = full.shape[:2]
+    window = _plane_window(surfaces, labels, box, (H, W), gp)
+    if window is None:
+        return []
+    (y0, y1, x0, x1), filled, inner = window
+    # the plane's residual at the pixels of its closed outline only (the window's others are never read)
+    fy, fx = np.nonzero(filled)
+    pts = full[fy + y0, fx + x0].astype(np.float64)
+    z = pts[:, 2]
+    res = np.einsum("ik,k->i", np.nan_to_num(pts), s.normal) + s.offset
+    sig = noise_full.sigma_m(np.where(np.isfinite(z), z, s.z_m))
+    hole = inner[fy, fx] & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
+    on_plane = pts[np.isfinite(z) & (np.abs(res) <= 4.0 * sig)]
+    win = full[y0:y1, x0:x1]
+    px = (fx + x0, fy + y0)
+    found = _gaps_from_holes(hole, px, intr, s, on_plane, win, noise_full, gp)
+    if not found and color_rgb is not None:
+        # the depth shows no gap here: one narrower than the sensor resolves may still show as shadow (the
+        # depth places a gap it resolves better: seen obliquely, the shadow takes in the far edge's face)
+        if not dark:
+            dark.append(dark_response(color_rgb))  # once, and only for a capture with a plane to look in
+        # a gap has its plate on both sides: a dark line along the outline (a fold's shadow) is not one
+        deep = cv2.erode(filled.astype(np.uint8), np.ones((2 * DARK_MARGIN_PX + 1,) * 2, np.uint8)).astype(bool)
+        on_line = deep[fy, fx] & dark_line(dark[0][y0:y1, x0:x1], filled)[fy, fx]
+        if (on_line & ~hole).sum() >= 15:
+            found = _gaps_from_holes(hole | on_line, px, intr, s, on_plane, win, noise_full, gp)
+    return found
 
 
 def _gaps_from_holes(hole: NDArray[np.bool_], px: tuple[NDArray[np.int64], NDArray[np.int64]],
@@ -302,17 +366,17 @@ def dark_line(response: NDArray[np.int16], mask: NDArray[np.bool_]) -> NDArray[n
     return mask & (response > DARK_SIGMA * max(spread, GREY_FLOOR))
 
 
-def _plane_window(surfaces: SurfaceSet, label: int, box: tuple[slice, slice], shape: tuple[int, int],
+def _plane_window(surfaces: SurfaceSet, labels: tuple[int, ...], box: tuple[slice, ...], shape: tuple[int, int],
                   gp: InnerGapParams,
                   ) -> tuple[tuple[int, int, int, int], NDArray[np.bool_], NDArray[np.bool_]] | None:  # fmt: skip
-    """A plane's full-resolution window (y0, y1, x0, x1), its outline there with holes closed, and that
-    outline eroded by a pixel; None for a plane too small to hold a gap. ``box``: the label's bounding box
-    (rows, columns) at the work resolution."""
+    """The full-resolution window (y0, y1, x0, x1) of the surfaces ``labels`` (a plane, or two plates of one
+    plane), their outline there with holes closed, and that outline eroded by a pixel; None for an outline
+    too small to hold a gap. ``box``: the labels' bounding box (rows, columns) at the work resolution."""
     import cv2
 
     f = surfaces.factor
     H, W = shape
-    small = (surfaces.labels[box] == label).astype(np.uint8)
+    small = np.isin(surfaces.labels[box], labels).astype(np.uint8)
     ys, xs = np.nonzero(small)
     if len(ys) < 50:
         return None
