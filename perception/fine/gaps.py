@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
 from perception.fine.folds import contact_points, rays_onto
+from perception.fine.gap_profile import gap_edges
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
 from perception.fits import median
@@ -178,6 +179,7 @@ def _shared_span(ta: FloatArray, tb: FloatArray, t0: float, t1: float) -> tuple[
 
 
 SIDE_BAND_M = 0.003  # the bands beside a gap its plates' density and holes are counted in
+PROFILE_HALF_M = 0.005  # the rays within this of a gap's first centre are fitted with its profile
 
 
 @dataclass(frozen=True)
@@ -459,19 +461,32 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
         return None
     # seen obliquely, the gap shows the far plate's edge face: the rays that meet it within the noise of
     # the top are taken for the plate, and those that meet it deeper cross the top's plane short of the edge,
-    # so both counts place that edge inside the gap. The face's own points, clearly behind the top and beside
-    # the estimate, stand at the edge (a square cut)
-    view_across = float(-c3 @ across) / float(np.linalg.norm(c3))
-    face = _face_in_gap(allp, c3, u, across, s, noise_full, (lo, hi),
-                        (edge_l, last_r) if view_across > 0 else (edge_r, last_l))  # fmt: skip
-    if face is not None and abs(view_across) > np.sin(np.radians(10.0)):
-        edge_l, edge_r = (face, edge_r) if view_across > 0 else (edge_l, face)
-        centre, width = 0.5 * (edge_l + edge_r), edge_r - edge_l
+    # so both counts place that edge inside the gap. The edges are fitted to the rays' ranges across the gap
+    # instead (perception.fine.gap_profile), from the counts' estimates
+    edge_l, edge_r = _fitted_edges(allp[(d_all @ u >= lo) & (d_all @ u <= hi)], c3, across, s, noise_full,
+                                   (edge_l, edge_r))  # fmt: skip
+    centre, width = 0.5 * (edge_l + edge_r), edge_r - edge_l
     mid = c3 + centre * across
     pts_seam = np.array([mid + lo * u, mid + hi * u])
     nrm = np.tile(s.normal, (2, 1))
     return SeamCurve("linear", "butt", pts_seam, nrm, nrm, (s.label, s.label), int(near.sum()), s.rms_m,
                      gap_m=width)  # fmt: skip
+
+
+def _fitted_edges(q: FloatArray, c3: FloatArray, across: FloatArray, s: Surface, noise_full: NoiseModel,
+                  edges: tuple[float, float]) -> tuple[float, float]:  # fmt: skip
+    """A gap's edges (offsets along ``across`` from ``c3``) with the far one fitted to the ranges of the points
+    ``q`` along it (:func:`perception.fine.gap_profile.gap_edges`) when the gap is seen more than 10 degrees
+    across, else (or when no fit is clearly better) ``edges`` as the counts placed them."""
+    view_across = float(-c3 @ across) / float(np.linalg.norm(c3))
+    if abs(view_across) <= np.sin(np.radians(10.0)):
+        return edges
+    q = q[np.abs((q - c3) @ across - 0.5 * (edges[0] + edges[1])) <= PROFILE_HALF_M]
+    start = edges if view_across > 0 else (edges[1], edges[0])  # (far, near): the rays run to the far plate
+    fitted = gap_edges(q, noise_full.sigma_m(q[:, 2]), s, c3, across, start)
+    if fitted is None:
+        return edges
+    return fitted if view_across > 0 else (fitted[1], fitted[0])
 
 
 def _strip_counts(q: FloatArray, c3: FloatArray, u: FloatArray, across: FloatArray, span: tuple[float, float],
@@ -483,28 +498,6 @@ def _strip_counts(q: FloatArray, c3: FloatArray, u: FloatArray, across: FloatArr
     along = (t >= span[0]) & (t <= span[1])
     side = (a >= 0.5 * width_m + 0.001) & (a <= 0.5 * width_m + 0.001 + SIDE_BAND_M)
     return float((along & (a <= half_m)).sum()), float((along & side).sum())
-
-
-def _face_in_gap(allp: FloatArray, c3: FloatArray, u: FloatArray, across: FloatArray, s: Surface,
-                 noise_full: NoiseModel, span: tuple[float, float],
-                 edge: tuple[float, float]) -> float | None:  # fmt: skip
-    """Where the edge face seen in a gap stands (offset along ``across``): the median offset of the points
-    within 1.5 mm of the estimated edge ``edge[0]`` that lie clearly behind the plate's top (3 to 12 sigma)
-    along the gap; None with fewer than 10 such points, or when they were not seen through the gap: the face's
-    points are met by rays that cross the top's plane in the gap, between the estimate and ``edge[1]``, the
-    other plate's last pixel on the top (for most of them: the median), while that plate's rim pixels whose
-    depth is pulled deep (mixed with the depth seen through the gap) stand behind the top along their own
-    rays, which cross it on their plate."""
-    d = allp - c3
-    t, a = d @ u, d @ across
-    r = allp @ s.normal + s.offset
-    sig = float(noise_full.sigma_m(s.z_m))
-    m = (t >= span[0]) & (t <= span[1]) & (np.abs(a - edge[0]) <= 0.0015) & (r < -3.0 * sig) & (r > -12.0 * sig)
-    if m.sum() < 10:
-        return None
-    top = rays_onto(allp[m], s)  # where their rays cross the top's plane
-    crossing = float(median((top - c3) @ across))
-    return float(median(a[m])) if min(edge) < crossing < max(edge) else None
 
 
 def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,
