@@ -29,7 +29,7 @@ COPY_SIGMA = 1.5  # see _others_residual
 ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
 END_BIN_POINTS = 4.0  # an end bin is widened until it is expected to hold this many points of a face
 TUKEY_C = 4.685  # Tukey's biweight constant: 95% efficiency on normal noise
-TUKEY_SETTLED_M = 1e-7  # the biweight's iterations stop when the plane moves less than this at the farthest point
+TUKEY_SETTLED_M = 1e-6  # the biweight stops when the plane moves less than a micrometre at the farthest point
 
 
 @dataclass(frozen=True)

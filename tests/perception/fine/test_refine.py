@@ -227,7 +227,7 @@ def test_a_seam_ends_where_its_faces_segmented_pixels_end_not_where_blurred_supp
     assert _within_segmentation(seam, (face0, np.zeros(len(x0), np.int32)), nm, 2, RefineParams()) is seam
 
 
-def test_the_biweight_stops_when_settled_within_a_tenth_of_a_micrometre_of_its_full_run(monkeypatch) -> None:
+def test_the_biweight_stops_when_settled_within_a_micrometre_of_its_full_run(monkeypatch) -> None:
     """A plate's points (0.5 mm noise) with a tenth of them from another face 5 mm off: the biweight stops once
     the plane moves less than TUKEY_SETTLED_M at the farthest point, and lands within that of the plane all
     eight iterations give; both within 0.05 mm of the true plane (z = 0.6 m)."""
