@@ -339,17 +339,18 @@ def _crossing(a_off: FloatArray, upper: NDArray[np.bool_]) -> float:
 
 
 def _face_line(tf: FloatArray, af: FloatArray) -> tuple[float, float]:
-    """The edge face's line ``a_off = off + slope * t`` through its points, by least squares with the points
-    beyond three MADs trimmed, three times (mixed pixels at the edge's ends and corners sit off the face)."""
-    keep = np.ones(len(tf), bool)
+    """The edge face's line ``a_off = off + slope * t`` through its points, by least squares on the points
+    within three robust sigmas (the MAD of all the residuals) of the line before, three times, starting from
+    the median: mixed pixels at the edge's ends and corners sit off the face, and at a plate's corner a third
+    of the points between the plates can lie on its other edge face, which a first fit on them all would
+    follow."""
     sol = np.array([float(median(af)), 0.0])
     for _ in range(3):
-        sol, *_ = np.linalg.lstsq(np.column_stack([np.ones(int(keep.sum())), tf[keep]]), af[keep], rcond=None)
         res = af - (sol[0] + sol[1] * tf)
-        mad = 1.4826 * float(median(np.abs(res[keep]))) + 1e-6
-        keep = np.abs(res) <= 3.0 * mad
+        keep = np.abs(res) <= 3.0 * (1.4826 * float(median(np.abs(res))) + 1e-6)
         if keep.sum() < 10:
             break
+        sol, *_ = np.linalg.lstsq(np.column_stack([np.ones(int(keep.sum())), tf[keep]]), af[keep], rcond=None)
     return float(sol[0]), float(sol[1])
 
 
