@@ -135,3 +135,41 @@ def line_coordinates(pts: FloatArray, center: FloatArray, direction: FloatArray)
     # Pythagoras instead of the perpendicular vectors: no (N, 3) temporaries (points lie within
     # centimetres of the line here, so the difference of squares loses nothing that matters)
     return t, np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - t * t, 0.0))
+
+
+def trimmed_line(x: FloatArray, y: FloatArray) -> tuple[float, float]:
+    """The line ``y = off + slope * x`` through 2-D samples, by least squares on the samples within three
+    robust sigmas (the MAD of all the residuals) of the line before, three times, starting from the median: up
+    to half of them may lie off it (mixed pixels at a face's ends and corners, another face's points) without
+    turning it."""
+    sol = np.array([float(median(np.asarray(y, dtype=np.float64))), 0.0])
+    for _ in range(3):
+        res = y - (sol[0] + sol[1] * x)
+        keep = np.abs(res) <= 3.0 * (1.4826 * float(median(np.abs(res))) + 1e-6)
+        if keep.sum() < 10:
+            break
+        sol, *_ = np.linalg.lstsq(np.column_stack([np.ones(int(keep.sum())), x[keep]]), y[keep], rcond=None)
+    return float(sol[0]), float(sol[1])
+
+
+def outer_boundary(along: FloatArray, out: FloatArray, bin_m: float, tol_m: float, *, min_bins: int = 5,
+                   origin: float | None = None) -> tuple[float, float] | None:  # fmt: skip
+    """The boundary of a face's points as the line ``out = off + slope * along``: the outermost point (largest
+    ``out``) of each ``bin_m`` bin of ``along`` (bins counted from ``origin``, else from the smallest
+    ``along``), fitted by :func:`trimmed_line`. None when fewer than ``min_bins`` bins hold points, or the
+    outermost points scatter about the line by more than ``tol_m`` (robust sigma): a ragged boundary is not a
+    face's cut edge. The edge itself lies beyond the last samples on the face, by about half a sample spacing,
+    which the caller adds."""
+    if len(along) == 0:
+        return None
+    k = np.floor((along - (along.min() if origin is None else origin)) / bin_m).astype(np.int64)
+    order = np.lexsort((-out, k))
+    first = np.r_[True, k[order][1:] != k[order][:-1]]
+    tops = order[first]  # the outermost point of each bin
+    if len(tops) < min_bins:
+        return None
+    off, slope = trimmed_line(along[tops], out[tops])
+    res = out[tops] - (off + slope * along[tops])
+    if 1.4826 * float(median(np.abs(res - median(res)))) > tol_m:
+        return None
+    return off, slope

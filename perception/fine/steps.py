@@ -26,7 +26,7 @@ from perception.fine.gaps import best_line
 from perception.fine.parallel import COHERENT_APART
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
-from perception.fits import median
+from perception.fits import median, outer_boundary, trimmed_line
 
 
 @dataclass(frozen=True)
@@ -260,7 +260,7 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
         if not _clean_step(a_off - (off + slope * t), r_low > 0.5 * h, (t >= t_lo) & (t <= t_hi), sp.band_m):
             return None
     elif face.sum() >= 20 and np.ptp(t[face]) > 0.5 * (t_hi - t_lo):
-        off, slope = _face_line(t[face], a_off[face])  # the edge face's own points place it, and turn it
+        off, slope = trimmed_line(t[face], a_off[face])  # the edge face's own points place it, and turn it
     elif face.sum() >= 10:
         off = float(median(a_off[face]))
     else:
@@ -338,43 +338,19 @@ def _crossing(a_off: FloatArray, upper: NDArray[np.bool_]) -> float:
     return 0.5 * float(a[k - 1] + a[k])
 
 
-def _face_line(tf: FloatArray, af: FloatArray) -> tuple[float, float]:
-    """The edge face's line ``a_off = off + slope * t`` through its points, by least squares on the points
-    within three robust sigmas (the MAD of all the residuals) of the line before, three times, starting from
-    the median: mixed pixels at the edge's ends and corners sit off the face, and at a plate's corner a third
-    of the points between the plates can lie on its other edge face, which a first fit on them all would
-    follow."""
-    sol = np.array([float(median(af)), 0.0])
-    for _ in range(3):
-        res = af - (sol[0] + sol[1] * tf)
-        keep = np.abs(res) <= 3.0 * (1.4826 * float(median(np.abs(res))) + 1e-6)
-        if keep.sum() < 10:
-            break
-        sol, *_ = np.linalg.lstsq(np.column_stack([np.ones(int(keep.sum())), tf[keep]]), af[keep], rcond=None)
-    return float(sol[0]), float(sol[1])
-
-
 def _boundary_line(a_up: FloatArray, t_up: FloatArray, span: tuple[float, float], edge: float, spacing_m: float,
                    bin_m: float, tol_m: float) -> tuple[float, float] | None:  # fmt: skip
     """The upper plate's edge as a line ``a_off = off + slope * t`` from its own points (``a_up`` across the
-    edge, ``t_up`` along it) when its edge face is not seen: the outermost point of each ``bin_m`` bin of the
-    ``span`` within a centimetre of ``edge``, fitted robustly (:func:`_face_line`), moved out by half the sample
-    spacing (the edge lies between the last sample on the plate and the next one, which is off it). None when
-    fewer than five bins hold points, or the outermost points scatter about the line by more than ``tol_m``
-    (robust sigma): a ragged rim is not a plate's cut edge."""
+    edge, ``t_up`` along it) when its edge face is not seen: the boundary (:func:`perception.fits.outer_boundary`)
+    of its points in the ``span`` within a centimetre of ``edge``, moved out by half the sample spacing (the
+    edge lies between the last sample on the plate and the next one, which is off it). None when fewer than
+    five bins hold points, or the outermost points scatter about the line by more than ``tol_m``: a ragged rim
+    is not a plate's cut edge."""
     near = (np.abs(a_up - edge) <= 0.01) & (t_up >= span[0]) & (t_up <= span[1])
-    a_up, t_up = a_up[near], t_up[near]
-    k = ((t_up - span[0]) / bin_m).astype(np.int64)
-    order = np.lexsort((-a_up, k))
-    first = np.r_[True, k[order][1:] != k[order][:-1]] if len(order) else np.zeros(0, bool)
-    tops = order[first]  # the outermost point of each bin
-    if len(tops) < 5:
+    line = outer_boundary(t_up[near], a_up[near], bin_m, tol_m, origin=span[0])
+    if line is None:
         return None
-    off, slope = _face_line(t_up[tops], a_up[tops])
-    res = a_up[tops] - (off + slope * t_up[tops])
-    if 1.4826 * float(median(np.abs(res - median(res)))) > tol_m:
-        return None
-    return off + 0.5 * spacing_m, slope
+    return line[0] + 0.5 * spacing_m, line[1]
 
 
 def _foot_seen(a_rel: FloatArray, t_low: FloatArray, span: tuple[float, float], bin_m: float, reach_m: float,

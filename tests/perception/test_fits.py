@@ -16,8 +16,10 @@ from perception.fits import (
     mean_rows,
     order_along_curve,
     orient_towards,
+    outer_boundary,
     plane_intersection,
     sum_rows,
+    trimmed_line,
 )
 
 
@@ -103,3 +105,39 @@ def test_sum_rows_and_mean_rows_are_numpys_own_values_bit_for_bit(order: str) ->
         assert np.array_equal(sum_rows(p), p.sum(axis=0))
         assert np.array_equal(sum_rows(p, w), (w[:, None] * p).sum(axis=0))
         assert np.array_equal(mean_rows(p), p.mean(axis=0))
+
+
+def test_a_trimmed_line_ignores_a_third_of_its_points_on_another_face() -> None:
+    """A lap's edge face at 1.6 mm across, rising 0.4 mm over 200 mm, its points with 0.15 mm of noise; near the
+    plate's corner (the first 20 mm) 150 more points lie on the plate's end face, 5 mm inside it (a third of
+    all). The line is the face's within 0.05 mm all along; a first least-squares fit on every point would turn
+    towards the end face (its offset at the corner 2 mm off)."""
+    rng = np.random.default_rng(4)
+    t = rng.uniform(-0.10, 0.10, 300)
+    a = 0.0016 + 0.002 * t + rng.normal(0.0, 0.00015, 300)
+    t_end = rng.uniform(-0.10, -0.08, 150)
+    a_end = -0.0034 + rng.normal(0.0, 0.0003, 150)
+    off, slope = trimmed_line(np.concatenate([t, t_end]), np.concatenate([a, a_end]))
+    for tt in (-0.1, 0.0, 0.1):
+        assert abs(off + slope * tt - (0.0016 + 0.002 * tt)) < 5e-5
+
+
+def test_an_outer_boundary_is_the_line_of_each_bins_outermost_point_and_a_ragged_one_is_none() -> None:
+    """A face's points fill 0 <= out <= 5 mm + 0.05 along over 40 mm along, one sample every 0.5 mm both ways:
+    the boundary is the line through the outermost samples (up to a grid step inside the edge); two strays 1.5
+    mm beyond it (mixed pixels) do not move it. Cut unevenly by +-1 mm from bin to bin, it scatters past a 0.3
+    mm tolerance: None. Fewer than five bins: None."""
+    along, out = np.meshgrid(np.arange(0.0, 0.04, 0.0005), np.arange(0.0, 0.0101, 0.0005))
+    along, out = along.ravel(), out.ravel()
+    face = out <= 0.005 + 0.05 * along
+    strays = np.array([0.010, 0.030])
+    a = np.concatenate([along[face], strays])
+    o = np.concatenate([out[face], 0.005 + 0.05 * strays + 0.0015])
+    off, slope = outer_boundary(a, o, 0.002, 0.0003)
+    for x in (0.0, 0.02, 0.04):
+        assert -0.0005 <= off + slope * x - (0.005 + 0.05 * x) <= 1e-9
+    block = np.round(along / 0.0005).astype(int) // 8  # 4 mm blocks: two bins each
+    ragged = out <= 0.004 + 0.001 * np.where(block % 2 == 0, 1.0, -1.0)
+    assert outer_boundary(along[ragged], out[ragged], 0.002, 0.0003) is None
+    short = along < 0.008
+    assert outer_boundary(along[short & face], out[short & face], 0.002, 0.0003) is None

@@ -233,19 +233,3 @@ def test_a_ragged_rim_is_not_a_cut_edge_and_a_foot_far_off_is_not_seen() -> None
     assert _foot_seen(beyond, t, (0.0, 0.1), 0.002, 0.0015)
     assert not _foot_seen(beyond[beyond > 0.003], t[beyond > 0.003], (0.0, 0.1), 0.002, 0.0015)
 
-
-def test_an_edge_face_line_ignores_the_third_of_its_points_on_the_plates_other_edge_face() -> None:
-    """An edge face at 1.6 mm across, rising 0.4 mm over 200 mm, its points with 0.15 mm of noise; near the
-    plate's corner (the first 20 mm) 150 more points lie on the plate's end face, 5 mm inside it (a third of
-    all). The line is the face's within 0.05 mm all along; a first least-squares fit on every point would turn
-    towards the end face (its offset at the corner 2 mm off)."""
-    from perception.fine.steps import _face_line
-
-    rng = np.random.default_rng(4)
-    t = rng.uniform(-0.10, 0.10, 300)
-    a = 0.0016 + 0.002 * t + rng.normal(0.0, 0.00015, 300)
-    t_end = rng.uniform(-0.10, -0.08, 150)
-    a_end = -0.0034 + rng.normal(0.0, 0.0003, 150)
-    off, slope = _face_line(np.concatenate([t, t_end]), np.concatenate([a, a_end]))
-    for tt in (-0.1, 0.0, 0.1):
-        assert abs(off + slope * tt - (0.0016 + 0.002 * tt)) < 5e-5
