@@ -141,7 +141,7 @@ def trimmed_line(x: FloatArray, y: FloatArray) -> tuple[float, float]:
     """The line ``y = off + slope * x`` through 2-D samples, by least squares on the samples within three
     robust sigmas (the MAD of all the residuals) of the line before, three times, starting from the median: up
     to half of them may lie off it (mixed pixels at a face's ends and corners, another face's points) without
-    turning it."""
+    turning it. With fewer than ten samples within, the median (slope 0): too few to turn a line on."""
     sol = np.array([float(median(np.asarray(y, dtype=np.float64))), 0.0])
     for _ in range(3):
         res = y - (sol[0] + sol[1] * x)

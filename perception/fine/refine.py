@@ -20,14 +20,13 @@ from perception.capture import CameraIntrinsics
 from perception.fine.cylinder import axis_basis, circle_across
 from perception.fine.folds import line_coords, plane_line, rays_onto, ring_points
 from perception.fine.root import open_root
-from perception.fine.runs import covered_runs, trim_stray_tails
+from perception.fine.seam_ends import supported_ends
 from perception.fine.surfaces import _fit_plane, fit_plane_rows
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
 from perception.fits import median
 
 COPY_SIGMA = 1.5  # see _others_residual
 ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
-END_BIN_POINTS = 4.0  # an end bin is widened until it is expected to hold this many points of a face
 TUKEY_C = 4.685  # Tukey's biweight constant: 95% efficiency on normal noise
 TUKEY_SETTLED_M = 1e-6  # the biweight stops when the plane moves less than a micrometre at the farthest point
 
@@ -308,8 +307,8 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     if s.joint != "v_groove":
         standing = (ra_s > 2.0 * margin) & (rb_s > 2.0 * margin) & (np.maximum(da, db) <= rp.band_m)
         t_standing = (q[standing] - line0) @ u
-    pieces = _supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
-                             noise, rp, standing=t_standing)  # fmt: skip
+    pieces = supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
+                            noise, rp, standing=t_standing)  # fmt: skip
     if not pieces:
         return []
     if s.joint == "v_groove":
@@ -516,117 +515,6 @@ def _face_sigma(res: FloatArray, sig: FloatArray, side: NDArray[np.bool_]) -> Fl
     own = 1.4826 * float(median(core)) / 0.7  # the median of |r| over the inner 80% of a normal: 0.7 MAD
     typical = float(median(sig[side]))
     return np.maximum(sig, np.clip(own, typical, 5.0 * typical))
-
-
-def _supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line0: FloatArray, u: FloatArray,
-                    t0: float, t1: float, noise: NoiseModel, rp: RefineParams,
-                    standing: FloatArray | None = None) -> list[FloatArray]:  # fmt: skip
-    """The seam's ends from full-resolution support: along the line, where both faces have points close to
-    it but clearly off the other face (bins of ``end_bin_m``, two points each), the covered stretches, the
-    longest first and the others from ``min_piece_m`` long, parted from it by something ``standing``; their
-    outermost points. Near the corner each face's points are within the noise of the other face too, and where
-    one face ends the other's points there would seem to continue it. ``standing``: positions along the line
-    of points in front of both faces; a hole where they stand out from the rest of the fold is not bridged."""
-    spans, spread = [], []
-    for q, other, own in ((qa, b, a), (qb, a, b)):
-        d = q - line0
-        t = d @ u
-        dist = np.sqrt(np.maximum((d * d).sum(axis=1) - t * t, 0.0))
-        z = float(median(q[:, 2]))
-        sig = float(noise.sigma_m(z))
-        off = other.residual(q)
-        close = (off > 3.0 * sig) & (dist <= rp.end_near_m + 4.0 * sig + 3.0 * float(noise.spacing_m(z)))
-        spans.append(t[close])
-        spread.append(_along_spread(q[close], own, u))
-    ta, tb = spans
-    if len(ta) < 3 or len(tb) < 3:
-        return []
-    lo, hi = min(t0, t1) - rp.end_slack_m, max(t0, t1) + rp.end_slack_m
-    nb = max(1, int(np.ceil((hi - lo) / rp.end_bin_m)))
-
-    # the coarse stretch's bins: it starts end_slack_m into the window, a whole number of bins, which is counted,
-    # not divided out of coordinates (int(6.0 - 1 ulp) is 5 for a quarter of the places a seam may start)
-    first = round(rp.end_slack_m / rp.end_bin_m)
-    inner = slice(first, first + int((max(t0, t1) - min(t0, t1)) / rp.end_bin_m))
-
-    def cover(t: FloatArray) -> NDArray[np.bool_]:
-        k = np.floor((t[(t >= lo) & (t < hi)] - lo) / rp.end_bin_m).astype(int)
-        count = np.bincount(np.clip(k, 0, nb - 1), minlength=nb)
-        # a face seen obliquely has few points near the line: its bins are widened until each is expected
-        # to hold END_BIN_POINTS of them where the face is, so that its random holes are not taken for its end
-        seen = count[inner][count[inner] > 0]
-        per_bin = float(median(seen)) if seen.size else 0.0
-        need = END_BIN_POINTS / max(per_bin, 0.5)
-        width = min(2 * int(np.ceil((need - 1.0) / 2.0)) + 1, 7)  # the smallest odd width (centred) holding four
-        if width > 1:
-            count = np.convolve(count, np.ones(width, dtype=np.int64), mode="same")
-        return count >= 2
-
-    both = cover(ta) & cover(tb)
-    blocked = None
-    if standing is not None and len(standing):
-        at = np.floor((standing[(standing >= lo) & (standing < hi)] - lo) / rp.end_bin_m).astype(int)
-        count = np.bincount(np.clip(at, 0, nb - 1), minlength=nb)
-        # an obstacle stands out from the fold's own rounding (a rounded corner's points stand in front of
-        # both planes all along it): four times as many such points as a covered bin holds, two at least
-        typical = float(median(count[both])) if both.any() else 0.0
-        blocked = count >= max(2.0, 4.0 * typical)
-    runs = covered_runs(both, int(rp.end_hole_m / rp.end_bin_m), blocked=blocked)
-    runs.sort(key=lambda r: r[0] - r[1])  # the longest first
-    # fewer points than a bin is widened to hold, past a hole, do not carry the end out (flying pixels, the
-    # other face's noise at its 3 sigma); a bin's worth or more past a hole is the face seen again
-    tail = int(END_BIN_POINTS) - 1
-    out: list[FloatArray] = []
-    for k, (r0, r1) in enumerate(runs):
-        # another stretch is a seam of its own only where something stands between it and the longest (past
-        # a hole in the data alone, the fold is not known to go on)
-        if k > 0 and (blocked is None or not blocked[min(r1, runs[0][1]) : max(r0, runs[0][0])].any()):
-            continue
-        ta_r = ta[(ta >= lo + r0 * rp.end_bin_m) & (ta < lo + r1 * rp.end_bin_m)]
-        tb_r = tb[(tb >= lo + r0 * rp.end_bin_m) & (tb < lo + r1 * rp.end_bin_m)]
-        if ta_r.size == 0 or tb_r.size == 0:
-            if k == 0:
-                return []
-            continue
-        ta_r, tb_r = trim_stray_tails(np.sort(ta_r), max_tail=tail), trim_stray_tails(np.sort(tb_r), max_tail=tail)
-        (a0, a1), (b0, b1) = _noise_ends(ta_r, spread[0]), _noise_ends(tb_r, spread[1])
-        s0 = max(a0, b0)
-        s1 = min(a1, b1)
-        if k == 0 and s1 - s0 < 0.005:
-            return []  # the longest stretch is too short: so is every other
-        if k == 0 or s1 - s0 >= rp.min_piece_m:
-            out.append(np.array([line0 + s0 * u, line0 + s1 * u]))
-    return out
-
-
-def _along_spread(q: FloatArray, S: Surface, u: FloatArray) -> float:
-    """How far the noise moves a point of face ``S`` along ``u`` (one sigma): the face's own residual scale
-    taken back along the rays (a depth camera's error lies along them) and onto ``u``."""
-    if len(q) < 10:
-        return 0.0
-    r = q / np.linalg.norm(q, axis=1)[:, None]
-    res = S.residual(q)
-    along_ray = 1.4826 * float(median(np.abs(res - median(res)))) / max(float(median(np.abs(r @ S.normal))), 0.1)
-    return along_ray * float(median(np.abs(r @ u)))
-
-
-def _noise_ends(t: FloatArray, spread: float, *, inside_m: float = 0.005) -> tuple[float, float]:
-    """The ends of sorted positions ``t`` along a line, each moved in past the points the noise (``spread``,
-    one sigma along the line; a depth camera's error lies along the rays, which run partly along the seam when
-    it is seen along its length) carried beyond it. Of a face's density rho per metre inside the end (measured
-    from three sigmas in, over ``inside_m``), rho spread / sqrt(2 pi) are expected beyond a sharp end: the end
-    is the point that many in from the outermost, short of the true end by about a sample spacing along the
-    line on average (a seam welded past its end is worse than one stopped a fraction of a millimetre short)."""
-    if spread <= 0.0 or len(t) < 10:
-        return float(t[0]), float(t[-1])
-    out = []
-    for end, sign in ((float(t[0]), 1.0), (float(t[-1]), -1.0)):
-        depth = sign * (t - end)  # how far in from this end
-        lo = 3.0 * spread
-        rho = float(np.count_nonzero((depth >= lo) & (depth < lo + inside_m))) / inside_m
-        k = min(round(float(rho * spread / np.sqrt(2.0 * np.pi))), len(t) // 4)
-        out.append(float(t[k]) if sign > 0 else float(t[-1 - k]))
-    return out[0], out[1]
 
 
 def _towards(S: Surface, u: FloatArray, s: SeamCurve) -> FloatArray:
