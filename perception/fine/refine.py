@@ -17,11 +17,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
-from perception.fine.cylinder import axis_basis, circle_across
+from perception.fine.cylinder import axis_basis, circle_fit_across
 from perception.fine.folds import line_coords, plane_line, rays_onto, ring_points
 from perception.fine.root import open_root
 from perception.fine.seam_ends import supported_ends
-from perception.fine.surfaces import _fit_plane, fit_plane_rows
+from perception.fine.surfaces import fit_plane_rows
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
 from perception.fits import median
 
@@ -153,7 +153,10 @@ def refine_seams(
                 pieces = [_within_segmentation(r, segmented, noise_full, surfaces.factor, rp) for r in pieces]
             out += pieces
         elif s.kind == "curved":
-            out.append(_refine_ring(s, q, A, B, noise_full, rp))
+            plane = A if A.kind == "plane" else B
+            far, lab = _face_points(full, intr, surfaces, s.points, rp.face_reach_m)
+            out.append(_refine_ring(s, q, A, B, noise_full, rp, beyond=far[lab == plane.label],
+                                    weight_beyond=float(surfaces.factor**2)))  # fmt: skip
         else:
             out.append(s)
     return out, int(read.sum())
@@ -528,30 +531,37 @@ def _towards(S: Surface, u: FloatArray, s: SeamCurve) -> FloatArray:
     return np.asarray(0.5 * (s.points[0] + s.points[-1]) + 0.01 * v, dtype=np.float64)
 
 
-def _refine_ring(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: NoiseModel,
-                 rp: RefineParams) -> SeamCurve:  # fmt: skip
+def _refine_ring(s: SeamCurve, q: FloatArray, A: Surface, B: Surface, noise: NoiseModel, rp: RefineParams, *,
+                 beyond: FloatArray | None = None, weight_beyond: float = 1.0) -> SeamCurve:  # fmt: skip
+    """A plane-cylinder seam (a ring) refitted on the points ``q`` near it: the plane on its points there
+    clear of the corner and on its own segmented points ``beyond`` the band (weighted, as a straight seam's
+    faces), the cylinder's centre and radius across its axis (kept from the whole surface) on its points
+    there clear of the corner (:func:`perception.fine.cylinder.circle_fit_across`)."""
     P, C = (A, B) if A.kind == "plane" else (B, A)
     if len(q) < 50:
         return s
     from scipy.spatial import cKDTree
 
     d, _ = cKDTree(s.points).query(q)
-    q = q[d <= rp.band_m]
+    near = d <= rp.band_m
+    q, d = q[near], d[near]
     if len(q) < 50:
         return s
     sig = noise.sigma_m(q[:, 2])
+    clear = d > rp.corner_sigma * sig + noise.spacing_m(q[:, 2])  # the corner's rounding, as a straight seam's
+    far = np.zeros((0, 3)) if beyond is None else beyond
+    if len(far):
+        far = far[cKDTree(s.points).query(far)[0] > rp.band_m]
+    sig_far = noise.sigma_m(far[:, 2])
     for _ in range(rp.iterations):
         rp_, rc = np.abs(P.residual(q)), np.abs(C.residual(q))
-        on_p = (rp_ <= rp.inlier_sigma * sig) & (rp_ <= rc) & (C.residual(q) > -0.0005)
-        on_c = (rc <= rp.inlier_sigma * sig) & (rc < rp_) & (P.residual(q) > -0.0005)
+        on_p = (rp_ <= rp.inlier_sigma * sig) & (rp_ <= rc) & (C.residual(q) > -0.0005) & clear
+        on_c = (rc <= rp.inlier_sigma * sig) & (rc < rp_) & (P.residual(q) > -0.0005) & clear
         if on_p.sum() < 20 or on_c.sum() < 20:
             return s
-        n, _, _ = _fit_plane(q[on_p])
-        n = n if n @ P.normal > 0 else -n
-        P = replace(P, normal=n, offset=-float(n @ q[on_p].mean(axis=0)))
-        # the cylinder: axis kept (from the whole surface), centre and radius refitted on the points here
+        P = _refit(P, P, q[on_p], far[np.abs(P.residual(far)) <= rp.inlier_sigma * sig_far], weight_beyond)
         qc = q[on_c]
-        circle = circle_across(qc, C.axis)
+        circle = circle_fit_across(qc, C.axis)
         if circle is None:
             return s
         centre, radius = circle
