@@ -311,7 +311,7 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         standing = (ra_s > 2.0 * margin) & (rb_s > 2.0 * margin) & (np.maximum(da, db) <= rp.band_m)
         t_standing = (q[standing] - line0) @ u
     pieces = supported_ends(q[all_a], q[all_b], a, b, line0, u, float((p0 - line0) @ u), float((p1 - line0) @ u),
-                            noise, rp, standing=t_standing)  # fmt: skip
+                            noise, rp, standing=t_standing, boundary=s.joint != "v_groove")  # fmt: skip
     if not pieces:
         return []
     if s.joint == "v_groove":

@@ -32,13 +32,15 @@ BOUNDARY_SCATTER = 2.0  # a boundary's outermost points scatter within this many
 
 def supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line0: FloatArray, u: FloatArray,
                    t0: float, t1: float, noise: NoiseModel, rp: RefineParams,
-                   standing: FloatArray | None = None) -> list[FloatArray]:  # fmt: skip
+                   standing: FloatArray | None = None, boundary: bool = True) -> list[FloatArray]:  # fmt: skip
     """The seam's ends from full-resolution support: along the line, where both faces have points close to
     it but clearly off the other face (bins of ``end_bin_m``, two points each), the covered stretches, the
     longest first and the others from ``min_piece_m`` long, parted from it by something ``standing``; their
     outermost points. Near the corner each face's points are within the noise of the other face too, and where
     one face ends the other's points there would seem to continue it. ``standing``: positions along the line
-    of points in front of both faces; a hole where they stand out from the rest of the fold is not bridged."""
+    of points in front of both faces; a hole where they stand out from the rest of the fold is not bridged.
+    ``boundary``: each end moved in onto the boundary of the face that stops there (:func:`boundary_ends`;
+    not for a V-groove, whose extent its trace along the groove places)."""
     spans, spread = [], []
     for q, other, own in ((qa, b, a), (qb, a, b)):
         d = q - line0
@@ -107,7 +109,8 @@ def supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line0
         if k == 0 and s1 - s0 < 0.005:
             return []  # the longest stretch is too short: so is every other
         if k == 0 or s1 - s0 >= rp.min_piece_m:
-            s0, s1 = boundary_ends(qa, qb, a, b, line0, u, (s0, s1), noise)
+            if boundary:
+                s0, s1 = boundary_ends(qa, qb, a, b, line0, u, (s0, s1), noise)
             out.append(np.array([line0 + s0 * u, line0 + s1 * u]))
     return out
 

@@ -159,17 +159,19 @@ def test_an_end_is_placed_on_the_faces_straight_edge_not_on_a_mixed_pixel_near_t
     origin = np.array([0.0, 0.0, z0])
     mixed = np.array([[0.0612, 0.0, z0 - 0.002], [0.0615, 0.0, z0 - 0.0021]])
 
-    def past_end(seed: int) -> float:
+    def past_end(seed: int, *, boundary: bool = True) -> float:
         rng = np.random.default_rng(seed)
         qa = np.column_stack([rng.uniform(0, 0.07, 1400), rng.uniform(0, 0.005, 1400), np.full(1400, z0)])
         qb = np.concatenate([_wall_ending_at(0.06, rng), mixed])
-        (ends,) = supported_ends(qa, qb, floor, wall, origin, u, 0.0, 0.06, nm, RefineParams())
+        (ends,) = supported_ends(qa, qb, floor, wall, origin, u, 0.0, 0.06, nm, RefineParams(), boundary=boundary)
         return float(np.sort(ends @ u)[1]) - 0.06
 
     fitted = np.array([past_end(seed) for seed in range(60)])
     assert abs(float(np.median(fitted))) < 0.0002 and np.percentile(fitted, 90) < 0.0005
+    unfitted = [past_end(seed, boundary=False) for seed in range(60)]  # as for a V-groove, which its trace ends
     monkeypatch.setattr(seam_ends, "BOUNDARY_MOVE_M", 0.0)
-    assert float(np.median([past_end(seed) for seed in range(60)])) > 0.0011
+    assert [past_end(seed) for seed in range(60)] == unfitted
+    assert float(np.median(unfitted)) > 0.0011
 
 
 def test_a_faces_boundary_never_moves_an_end_out_nor_in_past_a_slanted_edge(monkeypatch) -> None:
