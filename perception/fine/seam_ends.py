@@ -41,18 +41,9 @@ def supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line0
     of points in front of both faces; a hole where they stand out from the rest of the fold is not bridged.
     ``boundary``: each end moved in onto the boundary of the face that stops there (:func:`boundary_ends`;
     not for a V-groove, whose extent its trace along the groove places)."""
-    spans, spread = [], []
-    for q, other, own in ((qa, b, a), (qb, a, b)):
-        d = q - line0
-        t = d @ u
-        dist = np.sqrt(np.maximum((d * d).sum(axis=1) - t * t, 0.0))
-        z = float(median(q[:, 2]))
-        sig = float(noise.sigma_m(z))
-        off = other.residual(q)
-        close = (off > 3.0 * sig) & (dist <= rp.end_near_m + 4.0 * sig + 3.0 * float(noise.spacing_m(z)))
-        spans.append(t[close])
-        spread.append(_along_spread(q[close], own, u))
-    ta, tb = spans
+    (ta, spread_a), (tb, spread_b) = (_close_to_line(q, own, other, line0, u, noise, rp)
+                                      for q, own, other in ((qa, a, b), (qb, b, a)))  # fmt: skip
+    spread = (spread_a, spread_b)
     if len(ta) < 3 or len(tb) < 3:
         return []
     lo, hi = min(t0, t1) - rp.end_slack_m, max(t0, t1) + rp.end_slack_m
@@ -113,6 +104,20 @@ def supported_ends(qa: FloatArray, qb: FloatArray, a: Surface, b: Surface, line0
                 s0, s1 = boundary_ends(qa, qb, a, b, line0, u, (s0, s1), noise)
             out.append(np.array([line0 + s0 * u, line0 + s1 * u]))
     return out
+
+
+def _close_to_line(q: FloatArray, own: Surface, other: Surface, line0: FloatArray, u: FloatArray, noise: NoiseModel,
+                   rp: RefineParams) -> tuple[FloatArray, float]:  # fmt: skip
+    """The positions along the line of face ``own``'s points ``q`` close to it (within ``end_near_m``, four
+    sigmas and three sample spacings) and clearly off the ``other`` face (three sigmas), and how far the noise
+    moves them along it (:func:`_along_spread`)."""
+    d = q - line0
+    t = d @ u
+    dist = np.sqrt(np.maximum((d * d).sum(axis=1) - t * t, 0.0))
+    z = float(median(q[:, 2]))
+    sig = float(noise.sigma_m(z))
+    close = (other.residual(q) > 3.0 * sig) & (dist <= rp.end_near_m + 4.0 * sig + 3.0 * float(noise.spacing_m(z)))
+    return t[close], _along_spread(q[close], own, u)
 
 
 def _along_spread(q: FloatArray, S: Surface, u: FloatArray) -> float:
