@@ -15,7 +15,9 @@
                                      plates, each bevel fitted on its cross-section at full resolution
       -> steps.step_seams            laps and steps: an upper plate's edge dropped onto the lower plate
       -> refine.refine_seams         both surfaces refitted on full-resolution points near the seam (planes
-                                     out to 100 mm on their faces); open roots: root.open_root
+                                     out to 100 mm on their faces); open roots: root.open_root; the ends
+                                     where both faces' points are, onto a face's straight edge
+                                     (seam_ends.supported_ends)
       -> merge.merge_collinear       pieces of one straight seam joined
       -> visibility.clip_to_view     kept where both faces are seen at under 75 degrees (78 for a face that
                                      fits its surface within 1.5 sigma, not across a gap), in runs >= 15 mm
