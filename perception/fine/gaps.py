@@ -226,7 +226,7 @@ def inner_gap_seams(
         if s.kind != "plane" or s.label in support or s.label >= len(boxes) or boxes[s.label] is None:
             continue
         out += _outline_gaps(full, intr, surfaces, noise_full, s, (s.label,), boxes[s.label], gp, color_rgb, dark)
-    for a, b in _coplanar_pairs(surfaces, pairs, support, found):
+    for a, b in _coplanar_pairs(surfaces, pairs, support, found, noise_full, gp):
         box = tuple(slice(min(x.start, y.start), max(x.stop, y.stop)) for x, y in zip(boxes[a], boxes[b], strict=True))
         big = max(surfaces.surfaces[a], surfaces.surfaces[b], key=lambda x: x.n_points)
         for seam in _outline_gaps(full, intr, surfaces, noise_full, big, (a, b), box, gp, color_rgb, dark):
@@ -236,15 +236,23 @@ def inner_gap_seams(
 
 
 def _coplanar_pairs(surfaces: SurfaceSet, pairs: tuple[Pair, ...], support: frozenset[int],
-                    found: Sequence[SeamCurve]) -> list[tuple[int, int]]:  # fmt: skip
+                    found: Sequence[SeamCurve], noise_full: NoiseModel,
+                    ip: InnerGapParams) -> list[tuple[int, int]]:  # fmt: skip
     """The adjacent planes (neither in ``support``) that are one plane within :class:`GapParams`' angle and
-    step, with no butt seam between them among ``found``."""
+    step, with no butt seam between them among ``found``, each large enough to flank a gap: a plate beside
+    a gap reaches ``far_m`` beyond its edge along ``min_side_share`` of the shortest gap at least
+    (:func:`_gap_between`), so its area is at least that rectangle's (the speckle of a face seen at a grazing
+    angle, dozens of small pieces of its plane, is not; each of them paired with the face made the face's
+    whole outline be searched again, 40 s on one capture)."""
     gp = GapParams()
     parted = {frozenset(c.surfaces) for c in found if c.joint == "butt"}
+    flank_m2 = ip.min_side_share * ip.min_length_m * ip.far_m
     out = []
     for pr in pairs:
         A, B = surfaces.surfaces[pr.a], surfaces.surfaces[pr.b]
         if pr.a in support or pr.b in support or A.kind != "plane" or B.kind != "plane":
+            continue
+        if min(_area_m2(S, noise_full, surfaces.factor) for S in (A, B)) < flank_m2:
             continue
         if float(A.normal @ B.normal) < np.cos(gp.max_angle_rad) or frozenset((pr.a, pr.b)) in parted:
             continue
@@ -252,6 +260,13 @@ def _coplanar_pairs(surfaces: SurfaceSet, pairs: tuple[Pair, ...], support: froz
         if abs(float(big.residual(small.centroid[None])[0])) <= gp.max_step_m:
             out.append((pr.a, pr.b))
     return out
+
+
+def _area_m2(s: Surface, noise_full: NoiseModel, factor: int) -> float:
+    """The area of plane ``s``: its work-resolution samples, each a spacing square seen along the ray to its
+    centroid (stretched by the obliquity, at most tenfold)."""
+    cos_in = abs(float(s.normal @ s.centroid)) / max(float(np.linalg.norm(s.centroid)), 1e-9)
+    return s.n_points * float(noise_full.spacing_m(s.z_m) * factor) ** 2 / max(cos_in, 0.1)
 
 
 def _parts(seam: SeamCurve, surfaces: SurfaceSet, a: int, b: int, intr: CameraIntrinsics) -> bool:
@@ -500,6 +515,9 @@ def _strip_counts(q: FloatArray, c3: FloatArray, u: FloatArray, across: FloatArr
     return float((along & (a <= half_m)).sum()), float((along & side).sum())
 
 
+SCORE_POINTS = 4000  # RANSAC trials are scored on at most this many hole points (a sample of them)
+
+
 def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,
                trials: int = 300, max_lines: int = 3) -> list[tuple[FloatArray, FloatArray]]:  # fmt: skip
     """Straight thin lines through (N, 3) hole points on a plane, RANSAC on point pairs: each line's points
@@ -518,7 +536,12 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
         d = d[ok] / ln[ok, None]
         o = left[i[ok, 0]]
         across = np.cross(normal, d)
-        pts = left[best_line(across, (across * o).sum(axis=1), np.ascontiguousarray(left.T), 0.001)]
+        offset = (across * o).sum(axis=1)
+        if len(left) > SCORE_POINTS:  # the trials scored on a sample, the best line's points taken from all
+            sample = np.ascontiguousarray(left[rng.choice(len(left), SCORE_POINTS, replace=False)].T)
+            k = best_trial(across, offset, sample, 0.001)
+            across, offset = across[k : k + 1], offset[k : k + 1]
+        pts = left[best_line(across, offset, np.ascontiguousarray(left.T), 0.001)]
         if len(pts) < 15:
             break
         # least squares on the inliers, then the points of this gap (within its widest) leave the pool
@@ -538,13 +561,21 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
 
 
 def best_line(across: FloatArray, offset: FloatArray, rows: FloatArray, tol_m: float, *,
-               chunk: int = 1024) -> NDArray[np.bool_]:  # fmt: skip
+              chunk: int = 1024) -> NDArray[np.bool_]:  # fmt: skip
     """Per point given as the (3, N) ``rows``: whether it lies within ``tol_m`` of the trial line (unit
     ``across`` (T, 3) and ``offset`` (T,): the points p with across . p = offset) that holds the most of
-    them (the first of equals). The (trials, points) distances are counted ``chunk`` points at a time, in
-    two arrays kept for the whole count: the whole matrix of a plate's many hole points ran to tens of MB,
-    whose page faults cost more than the arithmetic (each value is the whole matrix's: :func:`_dots`
-    works per element)."""
+    them (the first of equals, :func:`best_trial`)."""
+    best = best_trial(across, offset, rows, tol_m, chunk=chunk) if len(across) > 1 else 0
+    dist_best = _dots(across[best : best + 1], rows)[0]
+    dist_best -= offset[best]
+    return np.abs(dist_best) <= tol_m
+
+
+def best_trial(across: FloatArray, offset: FloatArray, rows: FloatArray, tol_m: float, *, chunk: int = 1024) -> int:
+    """The index of the trial line of :func:`best_line` that holds the most of the points ``rows`` (the first
+    of equals). The (trials, points) distances are counted ``chunk`` points at a time, in two arrays kept for
+    the whole count: the whole matrix of a plate's many hole points ran to tens of MB, whose page faults cost
+    more than the arithmetic (each value is the whole matrix's: :func:`_dots` works per element)."""
     n = rows.shape[1]
     counts = np.zeros(len(across), dtype=np.intp)
     out, tmp = np.empty((len(across), min(chunk, n))), np.empty((len(across), min(chunk, n)))
@@ -554,10 +585,7 @@ def best_line(across: FloatArray, offset: FloatArray, rows: FloatArray, tol_m: f
         dist -= offset[:, None]
         np.abs(dist, out=dist)
         counts += (dist <= tol_m).sum(axis=1)
-    best = int(np.argmax(counts))
-    dist_best = _dots(across[best : best + 1], rows)[0]
-    dist_best -= offset[best]
-    return np.abs(dist_best) <= tol_m
+    return int(np.argmax(counts))
 
 
 def _dots(a: FloatArray, rows: FloatArray, *, out: tuple[FloatArray, FloatArray] | None = None) -> FloatArray:

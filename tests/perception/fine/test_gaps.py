@@ -317,3 +317,53 @@ def test_a_gap_parts_two_surfaces_when_one_lies_on_each_side_of_it() -> None:
     assert _parts(seam_at(100.0), surf, 0, 1, intr)  # between the two
     assert not _parts(seam_at(40.0), surf, 0, 1, intr)  # inside surface 0
     assert not _parts(seam_at(100.0), surf, 0, 2, intr)  # between 0 and another
+
+
+def test_only_pieces_large_enough_to_flank_a_gap_are_looked_in_as_one_outline() -> None:
+    # three pieces of one plane at 0.5 m seen square, 1 mm work samples: a plate of 40 x 40 samples, another
+    # beside it, and a speckle of 64 samples (64 mm^2, under the 12 mm x 8 mm a plate covers that reaches 8 mm
+    # beyond the shortest gap along 60% of it): only the two plates are a pair to look in
+    from perception.fine.gaps import InnerGapParams, _coplanar_pairs
+    from perception.fine.types import NoiseModel, Pair, Surface, SurfaceSet
+
+    nm = NoiseModel(sigma_1m_m=1e-3, floor_m=5e-5, pixel_angle_rad=0.001)  # full resolution: 0.5 mm at 0.5 m
+    down = np.array([0.0, 0.0, -1.0])
+
+    def plate(label: int, n: int) -> Surface:
+        return Surface(label, "plane", down, 0.5, 1e-4, n, np.array([0.0, 0.0, 0.5]), 0.5)
+
+    surf = SurfaceSet(np.zeros((1, 1), np.int32), 2, (plate(0, 1600), plate(1, 1600), plate(2, 64)))
+    touch = np.zeros((1, 2), np.int64)
+    pairs = (Pair(0, 1, touch), Pair(0, 2, touch), Pair(1, 2, touch))
+    assert _coplanar_pairs(surf, pairs, frozenset(), (), nm, InnerGapParams()) == [(0, 1)]
+    # 100 samples of 1 mm: as large as the rule asks, it is looked in
+    surf = SurfaceSet(surf.labels, 2, (plate(0, 1600), plate(1, 1600), plate(2, 100)))
+    assert _coplanar_pairs(surf, pairs, frozenset(), (), nm, InnerGapParams()) == [(0, 1), (0, 2), (1, 2)]
+    # 64 samples of a plane seen at 60 degrees cover twice the area of 64 seen square: 128 mm^2
+    from perception.fine.gaps import _area_m2
+
+    tilted = Surface(2, "plane", np.array([0.0, np.sin(np.radians(60.0)), -0.5]), 0.25, 1e-4, 64,
+                     np.array([0.0, 0.0, 0.5]), 0.5)  # fmt: skip
+    assert _area_m2(tilted, nm, 2) == pytest.approx(128e-6)
+    assert _area_m2(plate(2, 64), nm, 2) == pytest.approx(64e-6)
+
+
+def test_a_line_of_holes_among_many_scattered_ones_is_found_from_a_sample_of_them() -> None:
+    # 20 000 dropouts scattered over a 200 mm plate and a 150 mm gap line of 1 500 hole points across it: the
+    # trials are scored on 4 000 of the holes; the line found is the gap's (the best trial's points within 1 mm,
+    # over most of its length)
+    from perception.fine.gaps import SCORE_POINTS, InnerGapParams, _gap_lines
+
+    rng = np.random.default_rng(3)
+    scattered = np.column_stack([rng.uniform(-0.1, 0.1, (20000, 2)), np.full(20000, 0.5)])
+    t = rng.uniform(-0.075, 0.075, 1500)
+    line = np.column_stack([0.02 + 0.3 * t, t, np.full(1500, 0.5)])
+    g = np.vstack([scattered, line])
+    assert len(g) > SCORE_POINTS
+    lines = _gap_lines(g, np.array([0.0, 0.0, -1.0]), InnerGapParams(), rng=np.random.default_rng(0))
+    pts, u = lines[0]
+    along = np.array([0.3, 1.0, 0.0]) / np.hypot(0.3, 1.0)
+    assert abs(float(u @ along)) > np.cos(np.radians(1.0))
+    on_line = np.abs((pts[:, :2] - [0.02, 0.0]) @ np.array([1.0, -0.3]) / np.hypot(1.0, 0.3)) <= 0.001
+    assert on_line.mean() > 0.85  # the gap's points, and the few scattered holes within 1 mm of it
+    assert float(np.ptp(pts @ along)) > 0.1
