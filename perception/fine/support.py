@@ -1,8 +1,12 @@
 """The surface the workpiece stands on (the table, a fixture plate): never a seam's face.
 
-It is the plane below everything: nearly every valid point lies on it or on its camera side. Of the planes
-that qualify (holding a fair share of the image), the largest one the operator did not prompt as part of the
-workpiece is taken; the largest of all when every one was prompted (a stray click on the table's border).
+It is the plane below everything: nearly every valid point lies on it or on its camera side, and what stands
+off it stands on it: over its outline (dropped onto the plane, mostly inside it), or touching it along an
+edge (a part on a table seen on one side of it only). Two butted plates filling the view with no table, one
+a few millimetres lower and parted from the other by the gap, are not one standing on the other: neither is
+a support and both are the workpiece (the XiaoyuChangeTheWorld frame). Of the planes that qualify (holding a
+fair share of the image), the largest one the operator did not prompt as part of the workpiece is taken; the
+largest of all when every one was prompted (a stray click on the table's border).
 """
 
 from __future__ import annotations
@@ -10,11 +14,14 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from perception.fine.types import NoiseModel, SurfaceSet
+from perception.fine.types import FloatArray, NoiseModel, Surface, SurfaceSet
 
 ABOVE_SHARE = 0.97  # at least this share of all points lies on or above the support
 MIN_SHARE = 0.08  # and it holds at least this share of the labelled pixels
 FLATNESS_M = 0.001  # pieces of the support plane agree this well (a welding table is flat to a fraction of this)
+CARRY_SHARE = 0.5  # at least this share of the points standing off a support lies over its outline
+FOOTPRINT_GROW_M = 0.006  # an outline (the convex hull of points dropped onto a plane) grown by this much
+CONTACT_M = 0.02  # or what stands off it touches it along this much (a part standing on it seen from one side)
 
 
 def find_support(
@@ -36,8 +43,11 @@ def find_support(
     for s in surfaces.surfaces:
         if s.kind != "plane" or s.n_points < MIN_SHARE * labelled:
             continue
-        above = (q @ s.normal + s.offset) >= -tol
-        if above.mean() >= ABOVE_SHARE:
+        res = q @ s.normal + s.offset
+        if np.mean(res >= -tol) < ABOVE_SHARE:
+            continue
+        pieces = _pieces(surfaces, s, noise)
+        if _carries(p, surfaces, noise, pieces, q[res > tol]) or _touches(surfaces, noise, pieces, s):
             qualify.append(s)
     # the faces of an inside corner seen from in front each have every point on their camera side: of those
     # that qualify, one the operator did not click is the table (a click on the table itself, a stray one on
@@ -46,10 +56,15 @@ def find_support(
     if not qualify:
         return frozenset()
     best = max(unclicked or qualify, key=lambda s: s.n_points).label
-    S = surfaces.surfaces[best]
-    same = {best}
+    return _pieces(surfaces, surfaces.surfaces[best], noise)
+
+
+def _pieces(surfaces: SurfaceSet, S: Surface, noise: NoiseModel) -> frozenset[int]:
+    """The labels of plane ``S`` and of every other piece of the same plane (the table seen on both sides of
+    the part)."""
+    same = {S.label}
     for s in surfaces.surfaces:
-        parallel = s.kind == "plane" and s.label != best and float(s.normal @ S.normal) > np.cos(np.radians(3.0))
+        parallel = s.kind == "plane" and s.label != S.label and float(s.normal @ S.normal) > np.cos(np.radians(3.0))
         # the same plane: the piece's mean within a table's flatness of the plane (its noise averages out over
         # its points); a plate lying on the table is its thickness above it
         if parallel and abs(float(S.residual(s.centroid[None])[0])) <= FLATNESS_M + 3.0 * float(
@@ -57,3 +72,61 @@ def find_support(
         ) / np.sqrt(max(s.n_points, 1)):
             same.add(s.label)
     return frozenset(same)
+
+
+def _carries(p: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, pieces: frozenset[int],
+             off: FloatArray) -> bool:  # fmt: skip
+    """Whether the points ``off`` (standing off a plane, on its camera side) stand over it: at least
+    :data:`CARRY_SHARE` of them, dropped onto the plane, lie within its outline (the footprint of the points
+    of all its ``pieces``, :func:`footprint_share`, grown by twice its samples' spacing along it). Nothing
+    standing off it: it carries (an empty table)."""
+    if len(off) == 0:
+        return True
+    from perception.fine.cylinder import axis_basis
+
+    s = surfaces.surfaces[min(pieces, key=lambda k: -surfaces.surfaces[k].n_points)]
+    e1, e2 = axis_basis(s.normal)
+    idx = np.flatnonzero(np.isin(surfaces.labels.reshape(-1), sorted(pieces)))
+    own = np.asarray(p, dtype=np.float64).reshape(-1, 3)[idx[:: max(1, len(idx) // 2000)]]
+    own = own[np.isfinite(own[:, 2])]
+    if len(own) < 3:
+        return False
+    # the outline is as coarse as the plane's samples along it: a floor seen at a grazing angle ends a
+    # stretched sample short of the wall standing on it
+    cos_in = np.abs(own @ s.normal) / np.linalg.norm(own, axis=1)
+    stretched = noise.spacing_m(own[:, 2]) / np.maximum(cos_in, 0.1)
+    grow = FOOTPRINT_GROW_M + 2.0 * float(np.percentile(stretched, 95))
+    off = off[:: max(1, len(off) // 2000)]
+    e12 = np.column_stack([e1, e2])
+    return footprint_share(off @ e12, own @ e12, grow) >= CARRY_SHARE
+
+
+def _touches(surfaces: SurfaceSet, noise: NoiseModel, pieces: frozenset[int], S: Surface) -> bool:
+    """Whether the surfaces standing off plane ``S`` (their centroid beyond its tolerance on its camera side)
+    touch its ``pieces`` pixel to pixel along :data:`CONTACT_M` at least: a plate lying on a table seen on one
+    side of it only stands on it along its edge, a plate beside a lower one is parted from it by a gap (pixels
+    with no depth, or depth behind both)."""
+    import cv2
+
+    off = [t.label for t in surfaces.surfaces if t.label not in pieces
+           and float(S.residual(t.centroid[None])[0]) > 6.0 * float(noise.sigma_m(t.z_m)) + 0.002]  # fmt: skip
+    if not off:
+        return False
+    lab = surfaces.labels
+    mine = np.isin(lab, sorted(pieces)).astype(np.uint8)
+    ring = cv2.dilate(mine, np.ones((3, 3), np.uint8)).astype(bool) & ~mine.astype(bool)
+    contact = int(np.count_nonzero(ring & np.isin(lab, off)))
+    return contact * float(noise.spacing_m(S.z_m)) >= CONTACT_M  # the work image's own spacing
+
+
+def footprint_share(xy: FloatArray, of: FloatArray, grow_m: float = FOOTPRINT_GROW_M) -> float:
+    """The share of the (N, 2) points ``xy`` within the footprint of the (M, 2) points ``of``: their convex
+    hull grown by ``grow_m`` (both dropped onto one plane, in its own axes)."""
+    from scipy.spatial import ConvexHull, Delaunay, QhullError
+
+    grown = np.vstack([of + step for step in grow_m * np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])])
+    try:
+        hull = grown[ConvexHull(grown).vertices]
+        return float(np.mean(Delaunay(hull).find_simplex(xy) >= 0))
+    except QhullError:  # points along one line: a hull of no area holds nothing
+        return 0.0

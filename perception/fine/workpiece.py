@@ -105,7 +105,7 @@ def _over_footprint(p: FloatArray, surfaces: SurfaceSet, part: set[int], neighbo
     """``part`` and every group of touching surfaces (not the support) that stands over its footprint on the
     support plane or under which it stands, the footprint (the convex hull of the points dropped onto the
     support, grown by :data:`TOUCH_M`) growing with each group taken, until none is left to take."""
-    from scipy.spatial import ConvexHull, Delaunay
+    from perception.fine.support import footprint_share
 
     e1, e2 = axis_basis(surfaces.surfaces[min(support)].normal)  # the support plane's own axes
     lab = surfaces.labels
@@ -119,9 +119,7 @@ def _over_footprint(p: FloatArray, surfaces: SurfaceSet, part: set[int], neighbo
 
     def inside(xy: FloatArray, of: FloatArray) -> float:
         """The share of ``xy`` within the footprint of the points ``of``."""
-        grown = np.vstack([of + step for step in TOUCH_M * np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])])
-        hull = grown[ConvexHull(grown).vertices]
-        return float(np.mean(Delaunay(hull).find_simplex(xy) >= 0))
+        return footprint_share(xy, of, TOUCH_M)
 
     groups: list[set[int]] = []
     left = {s.label for s in surfaces.surfaces if s.label not in support and s.label not in part}

@@ -71,3 +71,55 @@ def test_a_thin_plate_lying_on_the_table_is_not_the_table() -> None:
     top = Surface(1, "plane", down, 0.796, 5e-4, int(plate.sum()), np.array([0.0, 0.0, 0.796]), 0.796)
     nm = NoiseModel(sigma_1m_m=5e-4 / 0.64, floor_m=5e-5, pixel_angle_rad=0.001)
     assert find_support(p, SurfaceSet(labels, 1, (table, top)), nm) == frozenset({0})
+
+
+def _two_levels(step_m: float, upper: np.ndarray, sigma_m: float, gap: np.ndarray | None = None) -> tuple:
+    """A camera looking straight down at 0.8 m on a plane filling the view, the pixels of ``upper`` raised by
+    ``step_m`` towards the camera: labels 0 (the lower level) and 1 (the raised one), 0.8 mm pixels; the
+    pixels of ``gap`` see nothing (no depth, no label)."""
+    from perception.fine.types import NoiseModel, Surface, SurfaceSet
+
+    h, w = upper.shape
+    gap = np.zeros_like(upper) if gap is None else gap
+    yy, xx = np.mgrid[0:h, 0:w]
+    z = np.where(upper, 0.8 - step_m, 0.8)
+    p = np.dstack([(xx - w / 2) * 0.001 * z, (yy - h / 2) * 0.001 * z, z])
+    p[gap] = np.nan
+    labels = np.where(gap, -1, np.where(upper, 1, 0)).astype(np.int32)
+    down = np.array([0.0, 0.0, -1.0])
+    low = Surface(0, "plane", down, 0.8, sigma_m, int((labels == 0).sum()), np.array([0.0, 0.0, 0.8]), 0.8)
+    high = Surface(1, "plane", down, 0.8 - step_m, sigma_m, int(upper.sum()), np.array([0.0, 0.0, 0.8 - step_m]),
+                   0.8 - step_m)  # fmt: skip
+    nm = NoiseModel(sigma_1m_m=sigma_m / 0.64, floor_m=5e-5, pixel_angle_rad=0.001)
+    return p, SurfaceSet(labels, 1, (low, high)), nm
+
+
+def test_a_plate_beside_a_lower_plate_across_a_gap_is_not_standing_on_it() -> None:
+    # two plates butted with a 4.7 mm step and a 5-pixel gap (4 mm, no depth) fill the view, no table (the
+    # XiaoyuChangeTheWorld frame): every point of the upper (left third) lies on the lower plate's camera
+    # side, but beside it, not over it, and parted from it; the upper plate has the lower one behind it.
+    # Neither is a support: both are the workpiece
+    _, xx = np.mgrid[0:200, 0:300]
+    gap = (xx >= 100) & (xx < 105)
+    p, surf, nm = _two_levels(0.0047, xx < 100, 1e-4, gap)
+    assert find_support(p, surf, nm) == frozenset()
+    # with no gap the upper plate lies on the lower one along its edge, as a plate on a table seen on one side
+    p, surf, nm = _two_levels(0.0047, xx < 100, 1e-4)
+    assert find_support(p, surf, nm) == frozenset({0})
+
+
+def test_a_box_standing_on_the_table_is_carried_by_it() -> None:
+    # a 20 mm box in the middle of the table: every point of its top stands off the table and over it
+    yy, xx = np.mgrid[0:200, 0:300]
+    box = (yy >= 60) & (yy < 140) & (xx >= 110) & (xx < 190)
+    p, surf, nm = _two_levels(0.02, box, 1e-4)
+    assert find_support(p, surf, nm) == frozenset({0})
+    # at the image's edge, with the table on three sides of it, it is still over the table's outline
+    p, surf, nm = _two_levels(0.02, (yy >= 60) & (yy < 140) & (xx < 80), 1e-4)
+    assert find_support(p, surf, nm) == frozenset({0})
+    # with the table on one side only it is beside the table's outline: it stands on it where it touches it,
+    # and not across a gap that sees nothing
+    p, surf, nm = _two_levels(0.02, xx < 100, 1e-4)
+    assert find_support(p, surf, nm) == frozenset({0})
+    p, surf, nm = _two_levels(0.02, xx < 100, 1e-4, (xx >= 100) & (xx < 105))
+    assert find_support(p, surf, nm) == frozenset()
