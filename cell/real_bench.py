@@ -214,15 +214,23 @@ def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]
     return item, cloud, paths
 
 
-def _authors_path(realdata: Path, paths: list[np.ndarray]) -> str:
-    """The Xiaoyu frame ships its authors' own detected weld path (camera frame, mm): how far ours lies."""
+def authors_points(realdata: Path) -> np.ndarray | None:
+    """The Xiaoyu frame's own detected weld path (weld_trajectory.csv, camera frame) in metres; None when the
+    file is not there."""
     csv = realdata / XIAOYU / "weld_trajectory.csv"
     if not csv.is_file():
+        return None
+    ref = np.loadtxt(csv, delimiter=",", skiprows=1)[:, :3]
+    return np.asarray(ref / 1000.0 if np.abs(ref).max() > 10 else ref, dtype=np.float64)
+
+
+def _authors_path(realdata: Path, paths: list[np.ndarray]) -> str:
+    """The Xiaoyu frame ships its authors' own detected weld path (camera frame, mm): how far ours lies."""
+    ref = authors_points(realdata)
+    if ref is None:
         return ""
     from perception.evaluate import point_to_polyline_distance
 
-    ref = np.loadtxt(csv, delimiter=",", skiprows=1)[:, :3]
-    ref = ref / 1000.0 if np.abs(ref).max() > 10 else ref
     if not paths:
         length = np.linalg.norm(np.diff(ref, axis=0), axis=1).sum()
         return f"the authors' path: {len(ref)} points, {length * 1000:.0f} mm long; no seam of ours to compare"
@@ -317,7 +325,11 @@ def run_real(realdata: Path, out: Path | None = None, method: Method = "refined"
         if out is not None and cloud is not None:
             out.mkdir(parents=True, exist_ok=True)
             img = out / (rel.replace("/", "__") + ".png")
-            draw(item, cloud, paths, refs.get(rel), img)
+            ref = refs.get(rel)
+            authors = authors_points(realdata) if kind == "rgbd frame" else None
+            if ref is None and authors is not None:  # the frame's authors' own path, drawn as its reference
+                ref = {"seams": [{"points": authors}]}
+            draw(item, cloud, paths, ref, img)
             item.image = str(img)
         items.append(item)
     return items
