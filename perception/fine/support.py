@@ -37,9 +37,9 @@ def find_support(
     valid = np.isfinite(p[..., 2])
     every = np.flatnonzero(valid)
     q = p.reshape(-1, 3)[every[:: max(1, len(every) // 40000)]]  # the sample, gathered alone
-    tol = 6.0 * noise.sigma_m(q[:, 2]) + 0.002
+    tol = _off_tolerance(noise, q[:, 2])
     labelled = int((surfaces.labels >= 0).sum())
-    qualify = []
+    qualify: dict[int, frozenset[int]] = {}  # each qualifying plane's label: the labels of all its pieces
     for s in surfaces.surfaces:
         if s.kind != "plane" or s.n_points < MIN_SHARE * labelled:
             continue
@@ -48,15 +48,20 @@ def find_support(
             continue
         pieces = _pieces(surfaces, s, noise)
         if _carries(p, surfaces, noise, pieces, q[res > tol]) or _touches(surfaces, noise, pieces, s):
-            qualify.append(s)
+            qualify[s.label] = pieces
     # the faces of an inside corner seen from in front each have every point on their camera side: of those
     # that qualify, one the operator did not click is the table (a click on the table itself, a stray one on
     # a thin face's border, does not make a wall the support)
-    unclicked = [s for s in qualify if s.label not in prompted]
+    unclicked = [k for k in qualify if k not in prompted]
     if not qualify:
         return frozenset()
-    best = max(unclicked or qualify, key=lambda s: s.n_points).label
-    return _pieces(surfaces, surfaces.surfaces[best], noise)
+    return qualify[max(unclicked or qualify, key=lambda k: surfaces.surfaces[k].n_points)]
+
+
+def _off_tolerance(noise: NoiseModel, z: FloatArray | float) -> FloatArray:
+    """How far in front of a support plane a point at range ``z`` may lie and still count as on it: six sigma of
+    the noise plus 2 mm. Beyond that it stands off the plane (:func:`_carries`, :func:`_touches`)."""
+    return np.asarray(6.0 * noise.sigma_m(z) + 0.002)
 
 
 def _pieces(surfaces: SurfaceSet, S: Surface, noise: NoiseModel) -> frozenset[int]:
@@ -84,7 +89,7 @@ def _carries(p: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, p
         return True
     from perception.fine.cylinder import axis_basis
 
-    s = surfaces.surfaces[min(pieces, key=lambda k: -surfaces.surfaces[k].n_points)]
+    s = surfaces.surfaces[max(sorted(pieces), key=lambda k: surfaces.surfaces[k].n_points)]  # the largest piece
     e1, e2 = axis_basis(s.normal)
     idx = np.flatnonzero(np.isin(surfaces.labels.reshape(-1), sorted(pieces)))
     own = np.asarray(p, dtype=np.float64).reshape(-1, 3)[idx[:: max(1, len(idx) // 2000)]]
@@ -109,7 +114,7 @@ def _touches(surfaces: SurfaceSet, noise: NoiseModel, pieces: frozenset[int], S:
     import cv2
 
     off = [t.label for t in surfaces.surfaces if t.label not in pieces
-           and float(S.residual(t.centroid[None])[0]) > 6.0 * float(noise.sigma_m(t.z_m)) + 0.002]  # fmt: skip
+           and float(S.residual(t.centroid[None])[0]) > float(_off_tolerance(noise, t.z_m))]  # fmt: skip
     if not off:
         return False
     lab = surfaces.labels
