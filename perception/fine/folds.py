@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from perception.fine.cylinder import axis_basis
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
-from perception.fits import median
+from perception.fits import mean_rows, median
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,7 @@ class FoldParams:
     near_m: float = 0.004  # support within this of the curve (plus noise and spacing) counts
     concave_sigma: float = 2.0
     lap_height_m: float = 0.014  # a standing face this narrow across the seam is a lap edge
+    crease_window_px: float = 12.0  # the local turn is measured on both faces this many work pixels either side
 
 
 def rays_onto(x: FloatArray, s: Surface) -> FloatArray:
@@ -95,8 +96,7 @@ def fold_seams(
         if len(pa) < 5 or len(pb) < 5:
             continue
         if A.kind == "plane" and B.kind == "plane":
-            seam = _plane_pair(p, lab, A, B, pa, pb, noise, fp, up)
-            out += seam
+            out += _plane_pair(p, lab, A, B, pa, pb, noise, fp, up, pair.contact_px)
         elif A.kind != B.kind:
             P, C = (A, B) if A.kind == "plane" else (B, A)
             pp, pc = (pa, pb) if A.kind == "plane" else (pb, pa)
@@ -105,7 +105,8 @@ def fold_seams(
 
 
 def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, pa: FloatArray, pb: FloatArray,
-                noise: NoiseModel, fp: FoldParams, up: FloatArray) -> list[SeamCurve]:  # fmt: skip
+                noise: NoiseModel, fp: FoldParams, up: FloatArray,
+                contact_px: NDArray[np.int64]) -> list[SeamCurve]:  # fmt: skip
     if abs(float(A.normal @ B.normal)) > np.cos(fp.min_turn_rad):
         return []
     near = np.vstack([pa, pb]).mean(axis=0)
@@ -136,6 +137,11 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
     sa, sb = float(median(ra)), float(median(rb))
     if min(sa, sb) <= 0.0 or max(np.percentile(ra, 75), np.percentile(rb, 75)) < fp.concave_sigma * sig:
         return []
+    # the fold is where the faces turn, not only where two fitted facets of a bent panel meet
+    wa, wb = _window_points(p, lab, (A.label, B.label), contact_px, fp.crease_window_px)
+    turn = local_turn(wa, wb, p0, u, A.normal + B.normal, (lo, hi), fp.crease_window_px * float(noise.spacing_m(z)))
+    if turn is not None and turn < fp.min_turn_rad:
+        return []
     nb_ = int(np.ceil((hi - lo) / fp.bin_m))
     ca = np.bincount(np.clip(((ta - lo) / fp.bin_m).astype(int), 0, nb_ - 1)[(ta >= lo) & (ta <= hi)], minlength=nb_)
     cb = np.bincount(np.clip(((tb - lo) / fp.bin_m).astype(int), 0, nb_ - 1)[(tb >= lo) & (tb <= hi)], minlength=nb_)
@@ -150,6 +156,44 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
         out.append(SeamCurve("linear", joint, pts, np.tile(A.normal, (2, 1)), np.tile(B.normal, (2, 1)),
                              (A.label, B.label), support, max(A.rms_m, B.rms_m)))  # fmt: skip
     return out
+
+
+def _window_points(p: FloatArray, lab: NDArray[np.int32], labels: tuple[int, int], contact_px: NDArray[np.int64],
+                   margin_px: float) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+    """The (N, 3) points of each of the two surfaces ``labels`` in the box of the contact pixels grown by
+    ``margin_px``."""
+    h, w = lab.shape
+    m = int(np.ceil(margin_px))
+    y0, x0 = np.maximum(contact_px.min(axis=0) - m, 0)
+    y1, x1 = np.minimum(contact_px.max(axis=0) + m + 1, (h, w))
+    sub_l, sub_p = lab[y0:y1, x0:x1], p[y0:y1, x0:x1]
+    out = []
+    for k in labels:
+        q = sub_p[sub_l == k]
+        out.append(q[np.isfinite(q[:, 2])])
+    return out[0], out[1]
+
+
+def local_turn(qa: FloatArray, qb: FloatArray, p0: FloatArray, u: FloatArray, m: FloatArray,
+               span: tuple[float, float], half_width_m: float, *, min_points: int = 10) -> float | None:
+    """The angle (radians) between planes fitted to each side's points ``qa``, ``qb`` within ``half_width_m``
+    of the line ``p0 + t u`` (along ``span`` of it; across it, square to ``u`` and to ``m``, the faces'
+    bisecting normal): how far the surfaces turn at the line itself. Two fitted facets of a smoothly bent
+    panel turn by the angle between their far-apart middles, but at the line where they meet the panel hardly
+    turns; a fold, however blurred, turns there by its whole angle. None when either side has fewer than
+    ``min_points`` there."""
+    across = np.cross(u, m)
+    across /= max(float(np.linalg.norm(across)), 1e-12)
+    normals = []
+    for q in (qa, qb):
+        d = q - p0
+        t, s = d @ u, d @ across
+        k = (np.abs(s) <= half_width_m) & (t >= span[0]) & (t <= span[1])
+        if k.sum() < min_points:
+            return None
+        r = q[k] - mean_rows(q[k])
+        normals.append(np.linalg.eigh(r.T @ r)[1][:, 0])
+    return float(np.arccos(min(abs(float(normals[0] @ normals[1])), 1.0)))
 
 
 def _standing_height(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p0: FloatArray, u: FloatArray,

@@ -111,10 +111,54 @@ def test_a_fold_is_concave_when_a_quarter_of_a_side_stands_clear_in_front_of_the
     for convex in (False, True):
         (A, B), pa, pb, corner = _rib_corner(far_share, convex=convex)
         grid, lab = pb[:, None, :], np.full((len(pb), 1), B.label, np.int32)
-        seams = _plane_pair(grid, lab, A, B, pa, pb, noise, FoldParams(), A.normal)
+        contact = np.column_stack([np.arange(len(pb)), np.zeros(len(pb), int)])
+        seams = _plane_pair(grid, lab, A, B, pa, pb, noise, FoldParams(), A.normal, contact)
         if convex:
             assert seams == []
         else:
             (seam,) = seams  # on the corner line (the planes are exact; its ends to a bin) along most of its 80 mm
             assert float(np.max(point_to_polyline_distance(seam.points, corner))) < 1e-4
             assert float(np.linalg.norm(seam.points[-1] - seam.points[0])) > 0.07
+
+
+def _hinge(turn: float, rng: np.random.Generator, *, noise_m: float = 2e-4) -> tuple[np.ndarray, np.ndarray]:
+    """Two faces meeting along the y axis (80 mm of it), 30 mm wide each, 1 mm samples, the second turned by
+    ``turn`` from the first (z = 0, x >= 0), with ``noise_m`` of noise along z."""
+    y, r = np.meshgrid(np.arange(-0.04, 0.04, 0.001), np.arange(0.0005, 0.03, 0.001))
+    y, r = y.ravel(), r.ravel()
+    a = np.column_stack([r, y, np.zeros_like(r)])
+    b = np.column_stack([-r * np.cos(turn), y, r * np.sin(turn)])
+    for q in (a, b):
+        q[:, 2] += noise_m * rng.standard_normal(len(q))
+    return a, b
+
+
+def test_the_local_turn_of_a_fold_is_its_angle_and_of_a_bent_panels_facets_the_bend_at_the_line() -> None:
+    from perception.fine.folds import local_turn
+
+    rng = np.random.default_rng(3)
+    p0, u = np.zeros(3), np.array([0.0, 1.0, 0.0])
+    for deg in (25.0, 45.0, 90.0):
+        m = np.array([0.0, 0.0, 1.0]) + np.array([np.sin(np.radians(deg)), 0.0, np.cos(np.radians(deg))])
+        # exact without noise; with 0.2 mm of it the window's edge (which noisy points fall inside) tilts a
+        # side by about a degree
+        for noise_m, tol in ((0.0, 1e-6), (2e-4, 1.5)):
+            a, b = _hinge(np.radians(deg), rng, noise_m=noise_m)
+            turn = local_turn(a, b, p0, u, m, (-0.04, 0.04), 0.01)
+            assert turn is not None and np.degrees(turn) == pytest.approx(deg, abs=tol)
+    # a trough of 150 mm radius (axis along y, 150 mm above the line) cut at its bottom into two facets each
+    # spanning 30 degrees of it: the facets' best planes turn 30 degrees, but within 10 mm of the line the
+    # panel turns by 10/150 rad (3.8 degrees) only
+    R = 0.15
+    y, phi = np.meshgrid(np.arange(-0.04, 0.04, 0.001), np.arange(0.0, np.radians(30.0), 0.001 / R))
+    y, phi = y.ravel(), phi.ravel()
+    a = np.column_stack([R * np.sin(phi), y, R - R * np.cos(phi)])
+    b = a * np.array([-1.0, 1.0, 1.0])
+    from perception.fine.surfaces import _fit_plane
+
+    na, nb = _fit_plane(a)[0], _fit_plane(b)[0]
+    assert np.degrees(np.arccos(abs(na @ nb))) == pytest.approx(30.0, abs=0.5)
+    turn = local_turn(a, b, p0, u, na + nb, (-0.04, 0.04), 0.01)
+    assert turn is not None and np.degrees(turn) == pytest.approx(np.degrees(0.010 / R), abs=0.3)
+    # too few points beside the line: nothing to tell
+    assert local_turn(a[:5], b, p0, u, na + nb, (-0.04, 0.04), 0.01) is None
