@@ -101,6 +101,8 @@ def fold_seams(
             P, C = (A, B) if A.kind == "plane" else (B, A)
             pp, pc = (pa, pb) if A.kind == "plane" else (pb, pa)
             out += _plane_cylinder(P, C, pp, pc, noise, fp)
+        else:
+            out += _cylinder_pair(A, B, pa, pb, noise, fp)
     return out
 
 
@@ -254,4 +256,72 @@ def _plane_cylinder(P: Surface, C: Surface, pp: FloatArray, pc: FloatArray, nois
         nrm_c = radial[idx]
         out.append(SeamCurve("curved", "fillet", pts, np.tile(P.normal, (len(idx), 1)), nrm_c, (P.label, C.label),
                              int(cover[0][idx].sum() + cover[1][idx].sum()), max(P.rms_m, C.rms_m)))  # fmt: skip
+    return out
+
+
+def radial_normals(C: Surface, x: FloatArray) -> FloatArray:
+    """(N, 3) outward unit normals of cylinder ``C`` at the (N, 3) points ``x`` (square to its axis)."""
+    d = x - C.centre
+    w = d - np.outer(d @ C.axis, C.axis)
+    return np.asarray(w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12))
+
+
+def saddle_points(S: Surface, L: Surface, theta: FloatArray) -> list[FloatArray]:
+    """Where the rulings of cylinder ``S`` at angles ``theta`` (round its axis, from
+    :func:`perception.fine.cylinder.axis_basis`) meet cylinder ``L``: the two curves in which a branch pipe
+    meets a main pipe (it enters on one side and may leave on the other), each (len(theta), 3) with NaN where
+    the ruling misses ``L``. Empty when the axes are parallel (the pipes lie side by side, or one within
+    the other: no branch joint)."""
+    e1, e2 = axis_basis(S.axis)
+    base = S.centre + S.radius * (np.cos(theta)[:, None] * e1 + np.sin(theta)[:, None] * e2)
+    v = S.axis - float(S.axis @ L.axis) * L.axis  # the ruling's direction square to L's axis
+    vv = float(v @ v)
+    if vv < 1e-6:
+        return []
+    d = base - L.centre
+    w0 = d - np.outer(d @ L.axis, L.axis)
+    b = w0 @ v
+    disc = b * b - vv * ((w0 * w0).sum(axis=1) - L.radius**2)
+    root = np.sqrt(np.where(disc >= 0.0, disc, np.nan))
+    return [base + ((-b + sign * root) / vv)[:, None] * S.axis for sign in (-1.0, 1.0)]
+
+
+def _cylinder_pair(A: Surface, B: Surface, pa: FloatArray, pb: FloatArray, noise: NoiseModel,
+                   fp: FoldParams) -> list[SeamCurve]:  # fmt: skip
+    """The concave saddle curves where two pipes meet (a branch on a main pipe), clipped to both supports:
+    traced round the narrower pipe, whose every ruling crosses the wider one once on each curve."""
+    z = float(median(np.vstack([pa, pb])[:, 2]))
+    sig = float(noise.sigma_m(z))
+    reach = fp.near_m + 3.0 * sig + 3.0 * float(noise.spacing_m(z))
+    # concave: each pipe's points beside the joint lie outside the other (a ridge has them inside)
+    ra, rb = B.residual(pa), A.residual(pb)
+    if min(float(median(ra)), float(median(rb))) <= 0.0:
+        return []
+    if max(np.percentile(ra, 75), np.percentile(rb, 75)) < fp.concave_sigma * sig:
+        return []
+    S, L = (A, B) if A.radius <= B.radius else (B, A)
+    n_bins = max(36, int(np.ceil(2 * np.pi * S.radius / fp.bin_m)))
+    theta = (np.arange(n_bins) + 0.5) * 2 * np.pi / n_bins
+    from scipy.spatial import cKDTree
+
+    out: list[SeamCurve] = []
+    for curve in saddle_points(S, L, theta):
+        ok = np.flatnonzero(np.isfinite(curve[:, 0]))
+        if len(ok) < 2:
+            continue
+        tree = cKDTree(curve[ok])
+        cover = []
+        for q in (pa, pb):
+            d, k = tree.query(q)
+            cover.append(np.bincount(ok[k[d <= reach]], minlength=n_bins))
+        for s0, s1 in covered_runs((cover[0] > 0) & (cover[1] > 0), int(fp.max_hole_m / fp.bin_m), closed=True):
+            idx = np.arange(s0, s1 + (1 if s1 - s0 == n_bins else 0)) % n_bins
+            pts = curve[idx]
+            if not np.isfinite(pts).all() or np.linalg.norm(np.diff(pts, axis=0), axis=1).sum() < fp.min_length_m:
+                continue
+            na, nb = radial_normals(A, pts), radial_normals(B, pts)
+            if float(median(np.arccos(np.clip(np.abs((na * nb).sum(axis=1)), 0.0, 1.0)))) < fp.min_turn_rad:
+                continue  # the pipes barely turn from each other there: no fold to weld
+            out.append(SeamCurve("curved", "fillet", pts, na, nb, (A.label, B.label),
+                                 int(cover[0][idx].sum() + cover[1][idx].sum()), max(A.rms_m, B.rms_m)))  # fmt: skip
     return out

@@ -152,7 +152,7 @@ def refine_seams(
                 segmented = _labelled_points(full, intr, surfaces, s.points, rp.end_slack_m + rp.band_m)
                 pieces = [_within_segmentation(r, segmented, noise_full, surfaces.factor, rp) for r in pieces]
             out += pieces
-        elif s.kind == "curved":
+        elif s.kind == "curved" and "plane" in (A.kind, B.kind):
             plane = A if A.kind == "plane" else B
             far, lab = _face_points(full, intr, surfaces, s.points, rp.face_reach_m)
             out.append(_refine_ring(s, q, A, B, noise_full, rp, beyond=far[lab == plane.label],

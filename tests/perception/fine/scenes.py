@@ -113,7 +113,7 @@ def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
           "butt_far": lambda: butt(0.0008, eye=(-0.16, -0.40, 0.51)),
           "wall": wall,
           "lap": lap, "lap_behind": lambda: lap(behind=True), "v_groove": v_groove,
-          "v_groove_open": lambda: v_groove(gap=0.0016, root=0.001, near=True)}[name]()  # fmt: skip
+          "v_groove_open": lambda: v_groove(gap=0.0016, root=0.001, near=True), "branch": branch}[name]()  # fmt: skip
     if noise == "stereo":
         return render(sc, noise="stereo", seed=seed, sensor=WHITE_ONLY)
     return render(sc, noise="none", seed=seed)
@@ -127,3 +127,14 @@ def work(name: str, noise: str = "none", seed: int = 0) -> tuple[np.ndarray, Loc
     lp = local_planes(p, window_px=7)
     nm = estimate_noise(p, lp)
     return p, lp, nm, segment_surfaces(p, lp, nm, factor=1)
+
+
+def branch(main_radius: float = 0.05, branch_radius: float = 0.02) -> Scene:
+    """A branch pipe standing on a main pipe that lies along x on the table (its axis at z = ``main_radius``):
+    they meet in a saddle, x = r cos t, y = r sin t, z = R + sqrt(R^2 - y^2). Seen from (-0.25, -0.20, 0.35)."""
+    R, r = main_radius, branch_radius
+    along_x = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # the cylinder's z onto x
+    main = Part("main", "cylinder", (R, R, 0.30), make_X(along_x, [-0.15, 0.0, R]), (0.5, 0.5, 0.5))
+    stand = Part("branch", "cylinder", (r, r, 0.12), make_X(np.eye(3), [0.0, 0.0, R]), (0.5, 0.5, 0.5))
+    cam = CameraSetup(eye=(-0.25, -0.20, 0.35), target=(0.0, 0.0, 0.08), width=640, height=360, fx=460.0, fy=460.0)
+    return Scene("test", "", (TABLE, main, stand), (), cam)

@@ -49,6 +49,54 @@ def test_a_pipe_on_a_plate_gives_one_ring_of_its_radius() -> None:
     assert d.max() < 3e-3
 
 
+def test_a_branch_pipe_on_a_main_pipe_gives_the_saddle_where_they_meet() -> None:
+    # main pipe R = 50 mm along x (axis at z = R), branch r = 20 mm standing on it: the saddle x = r cos t,
+    # y = r sin t, z = R + sqrt(R^2 - y^2); the camera sees the side of it towards (-x, -y)
+    from perception.transforms import invert_X, transform_points
+
+    res = rendered("branch")
+    surf = work("branch")[3]
+    assert sorted(round(s.radius, 3) for s in surf.surfaces if s.kind == "cylinder") == [0.02, 0.05]
+    (seam,) = [s for s in folds("branch") if s.kind == "curved"]
+    assert seam.joint == "fillet"
+    t = np.linspace(0.0, 2 * np.pi, 20001)
+    y = 0.02 * np.sin(t)
+    saddle_world = np.column_stack([0.02 * np.cos(t), y, 0.05 + np.sqrt(0.05**2 - y**2)])
+    saddle = transform_points(invert_X(res.X_world_camera), saddle_world)
+    d = point_to_polyline_distance(seam.points, saddle)
+    assert float(np.median(d)) < 2e-4 and float(d.max()) < 5e-4
+    # the visible side: over a third of the way round (the whole saddle is ~128 mm)
+    assert float(np.linalg.norm(np.diff(seam.points, axis=0), axis=1).sum()) > 0.045
+    # each face's outward normal at the seam: the pipes' radial directions there
+    w = transform_points(res.X_world_camera, seam.points)
+    nb = np.column_stack([w[:, 0], w[:, 1], np.zeros(len(w))]) / 0.02
+    nm_ = np.column_stack([np.zeros(len(w)), w[:, 1], w[:, 2] - 0.05]) / 0.05
+    R = res.X_world_camera[:3, :3]
+    got = {round(s.radius, 2): n for s, n in zip((surf.surfaces[seam.surfaces[0]], surf.surfaces[seam.surfaces[1]]),
+                                                  (seam.normals_a, seam.normals_b), strict=True)}  # fmt: skip
+    assert np.abs(got[0.02] @ R.T - nb).max() < 0.02 and np.abs(got[0.05] @ R.T - nm_).max() < 0.02
+
+
+def test_the_saddle_of_two_pipes_is_exact_and_none_for_parallel_ones() -> None:
+    from perception.fine.folds import saddle_points
+    from perception.fine.types import Surface
+
+    def cyl(axis, centre, r):
+        return Surface(0, "cylinder", np.zeros(3), 0.0, 0.0, 0, np.zeros(3), 0.5, axis=np.asarray(axis, float),
+                       centre=np.asarray(centre, float), radius=r)  # fmt: skip
+
+    main, stand = cyl([1, 0, 0], [0, 0, 0], 0.05), cyl([0, 0, 1], [0, 0, 0], 0.03)
+    theta = np.linspace(0.0, 2 * np.pi, 50, endpoint=False)
+    low, high = saddle_points(stand, main, theta)
+    for c, sign in ((low, -1.0), (high, 1.0)):  # the branch enters below and leaves above the main pipe's axis
+        assert np.allclose(np.hypot(c[:, 0], c[:, 1]), 0.03) and np.allclose(np.hypot(c[:, 1], c[:, 2]), 0.05)
+        assert np.all(np.sign(c[:, 2]) == sign)
+    # a branch wider than the main pipe misses it where its rulings pass beside: NaN there
+    (c, _) = saddle_points(cyl([0, 0, 1], [0, 0, 0], 0.06), main, theta)
+    assert np.isnan(c[:, 0]).any() and np.isfinite(c[:, 0]).any()
+    assert saddle_points(cyl([1, 0, 0], [0, 0.1, 0], 0.03), main, theta) == []
+
+
 def test_joint_types_follow_how_the_faces_stand() -> None:
     up = np.array([0.0, 0.0, 1.0])
     x, y = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
