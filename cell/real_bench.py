@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
@@ -214,9 +215,10 @@ def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]
     return item, cloud, paths
 
 
+@cache
 def authors_points(realdata: Path) -> np.ndarray | None:
     """The Xiaoyu frame's own detected weld path (weld_trajectory.csv, camera frame) in metres; None when the
-    file is not there."""
+    file is not there. Read once (the item's note and its picture both use it)."""
     csv = realdata / XIAOYU / "weld_trajectory.csv"
     if not csv.is_file():
         return None

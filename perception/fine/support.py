@@ -47,7 +47,8 @@ def find_support(
         if np.mean(res >= -tol) < ABOVE_SHARE:
             continue
         pieces = _pieces(surfaces, s, noise)
-        if _carries(p, surfaces, noise, pieces, q[res > tol]) or _touches(surfaces, noise, pieces, s):
+        mine = np.isin(surfaces.labels, sorted(pieces))
+        if _carries(p, surfaces, noise, pieces, mine, q[res > tol]) or _touches(surfaces, noise, pieces, mine, s):
             qualify[s.label] = pieces
     # the faces of an inside corner seen from in front each have every point on their camera side: of those
     # that qualify, one the operator did not click is the table (a click on the table itself, a stray one on
@@ -80,18 +81,18 @@ def _pieces(surfaces: SurfaceSet, S: Surface, noise: NoiseModel) -> frozenset[in
 
 
 def _carries(p: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, pieces: frozenset[int],
-             off: FloatArray) -> bool:  # fmt: skip
+             mine: NDArray[np.bool_], off: FloatArray) -> bool:  # fmt: skip
     """Whether the points ``off`` (standing off a plane, on its camera side) stand over it: at least
     :data:`CARRY_SHARE` of them, dropped onto the plane, lie within its outline (the footprint of the points
-    of all its ``pieces``, :func:`footprint_share`, grown by twice its samples' spacing along it). Nothing
-    standing off it: it carries (an empty table)."""
+    of all its ``pieces``, whose pixels ``mine`` marks, :func:`footprint_share`, grown by twice its samples'
+    spacing along it). Nothing standing off it: it carries (an empty table)."""
     if len(off) == 0:
         return True
     from perception.fine.cylinder import axis_basis
 
     s = surfaces.surfaces[max(sorted(pieces), key=lambda k: surfaces.surfaces[k].n_points)]  # the largest piece
     e1, e2 = axis_basis(s.normal)
-    idx = np.flatnonzero(np.isin(surfaces.labels.reshape(-1), sorted(pieces)))
+    idx = np.flatnonzero(mine.reshape(-1))
     own = np.asarray(p, dtype=np.float64).reshape(-1, 3)[idx[:: max(1, len(idx) // 2000)]]
     own = own[np.isfinite(own[:, 2])]
     if len(own) < 3:
@@ -106,21 +107,20 @@ def _carries(p: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, p
     return footprint_share(off @ e12, own @ e12, grow) >= CARRY_SHARE
 
 
-def _touches(surfaces: SurfaceSet, noise: NoiseModel, pieces: frozenset[int], S: Surface) -> bool:
+def _touches(surfaces: SurfaceSet, noise: NoiseModel, pieces: frozenset[int], mine: NDArray[np.bool_],
+             S: Surface) -> bool:  # fmt: skip
     """Whether the surfaces standing off plane ``S`` (their centroid beyond its tolerance on its camera side)
-    touch its ``pieces`` pixel to pixel along :data:`CONTACT_M` at least: a plate lying on a table seen on one
-    side of it only stands on it along its edge, a plate beside a lower one is parted from it by a gap (pixels
-    with no depth, or depth behind both)."""
+    touch its ``pieces`` (their pixels: ``mine``) pixel to pixel along :data:`CONTACT_M` at least: a plate lying
+    on a table seen on one side of it only stands on it along its edge, a plate beside a lower one is parted
+    from it by a gap (pixels with no depth, or depth behind both)."""
     import cv2
 
     off = [t.label for t in surfaces.surfaces if t.label not in pieces
            and float(S.residual(t.centroid[None])[0]) > float(_off_tolerance(noise, t.z_m))]  # fmt: skip
     if not off:
         return False
-    lab = surfaces.labels
-    mine = np.isin(lab, sorted(pieces)).astype(np.uint8)
-    ring = cv2.dilate(mine, np.ones((3, 3), np.uint8)).astype(bool) & ~mine.astype(bool)
-    contact = int(np.count_nonzero(ring & np.isin(lab, off)))
+    ring = cv2.dilate(mine.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~mine
+    contact = int(np.count_nonzero(ring & np.isin(surfaces.labels, off)))
     return contact * float(noise.spacing_m(S.z_m)) >= CONTACT_M  # the work image's own spacing
 
 
