@@ -7,7 +7,9 @@ a seam the groove is followed slice by slice: in each slice a few millimetres lo
 groove are fitted with a hinge (two lines meeting at the bottom, their vertex free within a pixel or two of
 the prediction). The groove goes on while the slice is a valley whose sides rise like the seam's own bevels
 (each at 0.35 to 1 / 0.35 of their half-turn, together at least 15 degrees) and the hinge fits within the
-noise; it ends at the first two slices in a row that are not. The hinge's offset from the root is measured
+noise, or, where the bottom rounds (a U) and no hinge does, a parabola fits better than the best hinge, its
+vertex near the prediction and its sides rising so at the window's edges; it ends at the first two slices in a
+row that are neither. The hinge's offset from the root is measured
 on the seam's own last slice. A seam that then bends beyond the noise becomes a curved seam through the
 slices' vertices.
 """
@@ -262,10 +264,28 @@ def _slice_bottom(q: FloatArray, f: _Frame, noise: NoiseModel, turn: float,
     rms, s0, c, k_left, k_right = best
     half = 0.5 * turn
     lo, hi = tp.turn_share * half, min(half / tp.turn_share, 0.5 * np.pi)
-    rise = (float(np.arctan(-k_left)), float(np.arctan(k_right)))  # each side rises away from the bottom
-    if not all(lo <= r <= hi for r in rise) or sum(rise) < tp.min_turn_rad or rms > tp.fit_sigma * sig:
+
+    def valley(rise: tuple[float, float], fit_rms: float) -> bool:
+        return all(lo <= r <= hi for r in rise) and sum(rise) >= tp.min_turn_rad and fit_rms <= tp.fit_sigma * sig
+
+    if valley((float(np.arctan(-k_left)), float(np.arctan(k_right))), rms):  # each side rises from the bottom
+        return np.asarray(f.centre + s0 * f.across + c * f.up, dtype=np.float64)
+    # a rounded or flat-bottomed (U) groove: no hinge fits both its sides, a parabola does, and better than the
+    # best hinge (a V whose sides rise too little for this groove's fits the hinge as well: past the groove's
+    # end, it is not this groove); its bottom is the parabola's vertex (within the hinge's reach of the
+    # prediction), its sides' rise the slopes at the window's edges
+    a2, a1, a0 = np.polyfit(s, h, 2)
+    if a2 <= 0.0:
         return None
-    return np.asarray(f.centre + s0 * f.across + c * f.up, dtype=np.float64)
+    sv = -a1 / (2.0 * a2)
+    if abs(sv) > 2.0 * spacing:
+        return None
+    w = tp.half_width_m
+    rise = (float(np.arctan(2.0 * a2 * w - a1)), float(np.arctan(2.0 * a2 * w + a1)))
+    fit = float(np.sqrt(np.mean((np.polyval((a2, a1, a0), s) - h) ** 2)))
+    if fit >= rms or not valley(rise, fit):
+        return None
+    return np.asarray(f.centre + sv * f.across + float(np.polyval((a2, a1, a0), sv)) * f.up, dtype=np.float64)
 
 
 def _hinge(s: FloatArray, h: FloatArray, vertices: FloatArray,

@@ -128,3 +128,37 @@ def test_a_stretch_running_on_beside_a_better_one_loses_what_lies_beside_it() ->
     t = (kept_poor.points - g0) @ u
     expected_start = 0.08 + np.sqrt(0.008**2 - 0.006**2)
     assert t.min() == pytest.approx(expected_start, abs=0.0011) and t.max() == pytest.approx(0.11, abs=1e-9)
+
+
+def _rounding_groove(round_m: float, sigma: float, seed: int) -> tuple[np.ndarray, CameraIntrinsics]:
+    """A plate 0.5 m in front of the camera with a groove along x from -0.1 to 0.1 m, 5 mm deep, its sides
+    sinking 30 degrees: a sharp V where x < 0, its bottom rounded where x > 0.01 (a hyperbola whose bottom
+    curves over about ``round_m``, as a U-groove's does), blending between; its bottom is (x, 0, 0.505)."""
+    intr = CameraIntrinsics(640, 360, 460.0, 460.0, 319.5, 179.5)
+    v, u = np.mgrid[0:360, 0:640].astype(np.float64)
+    rx, ry = (u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy
+    k, depth = np.tan(np.radians(30.0)), 0.005
+    z = np.full(u.shape, 0.5)
+    for _ in range(20):
+        x, y = rx * z, ry * z
+        r = round_m * np.clip(x / 0.01, 0.0, 1.0)
+        sink = np.maximum(depth - k * (np.hypot(y, r) - r), 0.0)
+        z = 0.5 + np.where(np.abs(x) < 0.1, sink, 0.0)
+    z += np.random.default_rng(seed).normal(0.0, sigma, z.shape)
+    return np.stack([rx * z, ry * z, z], axis=-1).astype(np.float32), intr
+
+
+def test_a_groove_whose_bottom_rounds_is_traced_on_by_its_parabola() -> None:
+    """The V stretch given exactly (x from -30 to -10 mm); past x = 0 the bottom rounds over 8 mm, where no
+    hinge fits both sides within the noise (0.1 mm) but a parabola does: traced on to within two slices of the
+    groove's end at 100 mm (no further: the plate beyond is no valley), every slice's bottom on the groove's
+    line, so that the seam stays the seed's exact line. With the hinge alone it stopped at x = 17 mm."""
+    organized, intr = _rounding_groove(0.008, 0.0001, 2)
+    s30, c30 = np.sin(np.radians(30.0)), np.cos(np.radians(30.0))
+    na, nb = np.array([0.0, s30, -c30]), np.array([0.0, -s30, -c30])
+    seed = _seed(np.array([-0.03, 0.0, 0.505]), np.array([-0.01, 0.0, 0.505]), na, nb)
+    nm = NoiseModel(sigma_1m_m=0.0001 / 0.25, floor_m=1e-5, pixel_angle_rad=1.0 / 460.0)
+    (s,) = trace_grooves([seed], organized, intr, nm)
+    assert s.kind == "linear"
+    assert point_to_polyline_distance(s.points, np.array([[-0.1, 0.0, 0.505], [0.1, 0.0, 0.505]])).max() < 1e-6
+    assert 0.094 < s.points[:, 0].max() < 0.1005
