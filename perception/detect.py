@@ -388,7 +388,24 @@ def _detect_cloud_surfaces(cloud: PointCloud, p: DetectParams, spacing: float) -
     res = detect_surfaces(cap, p, organized=view.organized)
     info = res.info | {"spacing_m": round(spacing, 5), "viewpoint": viewpoint.round(4).tolist(),
                        "view_px": [w, h]}  # fmt: skip
+    if res.info.get("support"):
+        res = _on_the_table(res, cloud.points, spacing)
     return replace(res, frame="camera", info=info)
+
+
+def _on_the_table(res: DetectionResult, points: FloatArray, spacing: float) -> DetectionResult:
+    """The seams of a cloud with a table (a support was found) that lie on the table's piece of it: the table
+    and everything standing on it are one piece, joined at three sample spacings; a piece clear of it (a clamp's
+    handle over the part, a stray cluster) is not the workpiece. NoSeamFound when no seam is left."""
+    from perception.cloud import connected_pieces, kdtree
+
+    piece = connected_pieces(points, 3.0 * spacing)
+    tree = kdtree(points)
+    kept = tuple(s for s in res.seams if np.bincount(piece[tree.query(np.asarray(s.points))[1]]).argmax() == 0)
+    if not kept:
+        raise NoSeamFound(f"{len(res.seams)} seam(s) found, none on the table's piece of the cloud: each lies on a "
+                          "piece clear of the table and what stands on it")  # fmt: skip
+    return replace(res, seams=tuple(replace(s, id=i) for i, s in enumerate(kept)))
 
 
 def _guess_viewpoint(points: FloatArray, normals: FloatArray | None = None) -> FloatArray:

@@ -86,3 +86,25 @@ def test_a_scan_in_a_z_up_frame_is_looked_at_from_the_side_it_was_taken_from() -
     eye = np.asarray(scene.camera.eye) - centre
     assert np.degrees(np.arccos(got @ eye / np.linalg.norm(got) / np.linalg.norm(eye))) < 30.0
     _assert_fillet_found(cloud, truth)
+
+
+def test_a_piece_floating_clear_of_the_table_holds_no_seam(monkeypatch) -> None:
+    """The tee's cloud (its table found as the support) with a bracket floating 200 mm over the table: two 60 mm
+    plates meeting at a right angle, open upwards. Its fold is a v_groove 57 mm long when every surface counts;
+    but it is joined to nothing standing on the table, so only the tee's fillet is given."""
+    scene = tee()
+    cloud, truth = _tee_cloud(scene.camera.X_world_camera)
+    s, y = (g.ravel() for g in np.meshgrid(np.arange(0.0005, 0.06, 0.0012), np.arange(-0.03, 0.03, 0.0012)))
+    r = np.sqrt(0.5)
+    left, right = (np.column_stack([0.2 + side * s * r, y, 0.2 + s * r]) for side in (-1.0, 1.0))
+    both = PointCloud(np.vstack([cloud, left, right]), source="tee")
+    out = detect_cloud(both, DetectParams())
+    assert out.info["support"]
+    (seam,) = out.seams
+    assert seam.joint == "fillet" and np.median(point_to_polyline_distance(np.asarray(seam.points), truth)) < 3e-4
+    # every seam kept: the bracket's fold is found too, on its line (x = z = 0.2 m)
+    import perception.detect as detect_module
+
+    monkeypatch.setattr(detect_module, "_on_the_table", lambda res, points, spacing: res)
+    (fold,) = [s for s in detect_cloud(both, DetectParams()).seams if s.joint != "fillet"]
+    assert fold.length_m > 0.05 and np.abs(np.asarray(fold.points)[:, [0, 2]] - 0.2).max() < 1e-3
