@@ -393,13 +393,20 @@ def _detect_cloud_surfaces(cloud: PointCloud, p: DetectParams, spacing: float) -
     return replace(res, frame="camera", info=info)
 
 
+PIECE_POINTS = 200_000  # a cloud's pieces are found on at most about this many of its points
+
+
 def _on_the_table(res: DetectionResult, points: FloatArray, spacing: float) -> DetectionResult:
     """The seams of a cloud with a table (a support was found) that lie on the table's piece of it: the table
     and everything standing on it are one piece, joined at three sample spacings; a piece clear of it (a clamp's
     handle over the part, a stray cluster) is not the workpiece. NoSeamFound when no seam is left."""
     from perception.cloud import connected_pieces, kdtree
 
-    piece = connected_pieces(points, 3.0 * spacing)
+    # a dense cloud is judged on every k-th point, the reach grown as their spacing is (memory and time stay
+    # those of PIECE_POINTS points)
+    k = max(1, int(np.ceil(len(points) / PIECE_POINTS)))
+    points = points[::k]
+    piece = connected_pieces(points, 3.0 * spacing * np.sqrt(k))
     tree = kdtree(points)
     kept = tuple(s for s in res.seams if np.bincount(piece[tree.query(np.asarray(s.points))[1]]).argmax() == 0)
     if not kept:
