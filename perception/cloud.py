@@ -100,20 +100,6 @@ def kdtree(points: FloatArray) -> cKDTree:
     return cKDTree(points, balanced_tree=False, compact_nodes=False)
 
 
-def connected_pieces(points: FloatArray, eps_m: float) -> IntArray:
-    """(N,) labels of the pieces of a cloud whose points are joined by chains of neighbours within ``eps_m``,
-    numbered from the largest piece (0) down."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    pairs = kdtree(points).query_pairs(eps_m, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
-    _, lab = connected_components(graph, directed=False)
-    rank = np.empty_like(lab)
-    rank[np.argsort(-np.bincount(lab), kind="stable")] = np.arange(lab.max() + 1)
-    return np.asarray(rank[lab], dtype=np.int64)
-
-
 def neighbourhoods(points: FloatArray, *, k: int = 16, radius_m: float = 0.0075) -> Neighbourhoods:
     tree = kdtree(points)
     k_eff = min(k, len(points))

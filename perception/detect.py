@@ -400,15 +400,17 @@ def _on_the_table(res: DetectionResult, points: FloatArray, spacing: float) -> D
     """The seams of a cloud with a table (a support was found) that lie on the table's piece of it: the table
     and everything standing on it are one piece, joined at three sample spacings; a piece clear of it (a clamp's
     handle over the part, a stray cluster) is not the workpiece. NoSeamFound when no seam is left."""
-    from perception.cloud import connected_pieces, kdtree
+    from perception.cloud import kdtree
+    from perception.fits import connected_components
 
     # a dense cloud is judged on every k-th point, the reach grown as their spacing is (memory and time stay
     # those of PIECE_POINTS points)
     k = max(1, int(np.ceil(len(points) / PIECE_POINTS)))
     points = points[::k]
-    piece = connected_pieces(points, 3.0 * spacing * np.sqrt(k))
     tree = kdtree(points)
-    kept = tuple(s for s in res.seams if np.bincount(piece[tree.query(np.asarray(s.points))[1]]).argmax() == 0)
+    piece = connected_components(points, 3.0 * spacing * np.sqrt(k), tree=tree)
+    table = int(np.argmax(np.bincount(piece)))  # the largest piece: the table and all that stands on it
+    kept = tuple(s for s in res.seams if np.bincount(piece[tree.query(np.asarray(s.points))[1]]).argmax() == table)
     if not kept:
         raise NoSeamFound(f"{len(res.seams)} seam(s) found, none on the table's piece of the cloud: each lies on a "
                           "piece clear of the table and what stands on it")  # fmt: skip

@@ -3,6 +3,8 @@ planes, coordinates along a line, and the order of points along a curve. Pure fu
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -98,12 +100,13 @@ def plane_intersection(
     return x[:3], d
 
 
-def connected_components(points: FloatArray, radius: float) -> NDArray[np.int64]:
-    """(N,) component label of each (N, 3) point, points closer than ``radius`` joined."""
+def connected_components(points: FloatArray, radius: float, *, tree: Any = None) -> NDArray[np.int64]:
+    """(N,) component label of each (N, 3) point, points closer than ``radius`` joined. ``tree``: the points'
+    KD-tree (:func:`perception.cloud.kdtree`) when the caller has it already."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components as graph_components
 
-    pairs = kdtree(points).query_pairs(radius, output_type="ndarray")
+    pairs = (kdtree(points) if tree is None else tree).query_pairs(radius, output_type="ndarray")
     n = len(points)
     g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, lab = graph_components(g, directed=False)

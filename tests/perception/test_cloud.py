@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from perception.cloud import (
-    connected_pieces,
     grow_regions,
     merge_coplanar_regions,
     neighbourhoods,
@@ -119,14 +118,3 @@ def test_closed_form_smallest_eigenpair_matches_eigh() -> None:
     assert np.abs(np.abs((v * evecs[:, :, 0]).sum(axis=1))[distinct] - 1.0).max() < 1e-9
     assert np.allclose(v[m + 0], [0, 1, 0]) or np.allclose(v[m + 0], [0, -1, 0])
 
-
-def test_connected_pieces_are_numbered_from_the_largest() -> None:
-    # a 20 x 20 grid (1 mm), a 5 x 5 grid 10 mm beside it, a lone point 5 mm from the small grid's corner
-    big = np.array([[x, y, 0.0] for x in range(20) for y in range(20)], float) * 0.001
-    small = np.array([[x, y, 0.0] for x in range(5) for y in range(5)], float) * 0.001 + [0.029, 0.0, 0.0]
-    lone = np.array([[0.038, 0.0, 0.0]])
-    lab = connected_pieces(np.vstack([small, lone, big]), 0.0015)
-    assert (lab[26:] == 0).all() and (lab[:25] == 1).all() and lab[25] == 2
-    # at a reach over 10 mm the gap and the lone point's 5 mm are bridged: one piece
-    lab = connected_pieces(np.vstack([small, lone, big]), 0.0105)
-    assert (lab == 0).all()
