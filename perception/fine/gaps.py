@@ -420,10 +420,15 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     u = u - (u @ s.normal) * s.normal
     u /= np.linalg.norm(u)
     across = np.cross(s.normal, u)
+    gap_half = 2.0 * float(np.sqrt(max(w[1], 0.0))) + 0.5 * float(noise_full.spacing_m(s.z_m))
+    # every test below reads points within twice far_m of the line at most: the plate's and the window's
+    # points are taken from a strip that wide once (they are a whole plate's, and there are a few lines)
+    reach = 2.0 * gp.far_m + gap_half + gp.side_m + PROFILE_HALF_M
+    c_across = float(c3 @ across)
+    pp, allp, all_holes = (x[np.abs(x @ across - c_across) <= reach] for x in (pp, allp, all_holes))
     # the plate on both sides: on-plane points within side_m of the gap line
     d = pp - c3
     a_off, t_along = d @ across, d @ u
-    gap_half = 2.0 * float(np.sqrt(max(w[1], 0.0))) + 0.5 * float(noise_full.spacing_m(s.z_m))
     tg = (g - c3) @ u
     lo, hi = float(tg.min()), float(tg.max())
     near = (t_along >= lo) & (t_along <= hi) & (np.abs(a_off) <= gap_half + gp.side_m)
@@ -515,7 +520,7 @@ def _strip_counts(q: FloatArray, c3: FloatArray, u: FloatArray, across: FloatArr
     return float((along & (a <= half_m)).sum()), float((along & side).sum())
 
 
-SCORE_POINTS = 4000  # RANSAC trials are scored on at most this many hole points (a sample of them)
+SCORE_POINTS = 1000  # RANSAC trials are scored on at most this many hole points (a sample of them)
 
 
 def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np.random.Generator,
