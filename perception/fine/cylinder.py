@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from perception.fine.types import FloatArray, Surface
-from perception.fits import median
+from perception.fits import median, soft_l1_least_squares
 
 # a cylinder's fit settles within 20 evaluations from its start (dev zoo's pipes: 4 to 17); a nearly flat
 # patch's radius runs off towards infinity for hundreds (one V-groove bevel: 325 evaluations, 0.3 s, to 23 m)
@@ -21,8 +21,6 @@ def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatA
     robust least-squares fit of the radial distances over axis, centre and radius (the window normals are
     blurred near the cylinder's outline and its fold with a plate, so the start's axis tilts a little).
     """
-    from scipy.optimize import least_squares
-
     finite = np.isfinite(normals)
     ok = finite[:, 0] & finite[:, 1] & finite[:, 2]  # np.all(axis=1) loops three values wide: slow
     if ok.sum() < 20:
@@ -75,12 +73,11 @@ def fit_cylinder(p: FloatArray, normals: FloatArray) -> tuple[FloatArray, FloatA
     r0 = resid(np.array([0.0, 0.0, 0.0, 0.0, r]))
     rows = rows[:, np.abs(r0) <= np.percentile(np.abs(r0), 70)]  # the start's worst 30% (other faces) sit out
     sig0 = float(median(np.abs(resid(np.array([0.0, 0.0, 0.0, 0.0, r]))))) + 1e-6
-    sol = least_squares(resid, np.array([0.0, 0.0, 0.0, 0.0, r]), jac=jac, loss="soft_l1", f_scale=max(sig0, 1e-4),
-                        x_scale=np.array([0.05, 0.05, scale, scale, scale]), ftol=1e-6, xtol=1e-6,
-                        max_nfev=MAX_EVALUATIONS)  # fmt: skip
-    if sol.status == 0:
+    x, settled = soft_l1_least_squares(resid, jac, np.array([0.0, 0.0, 0.0, 0.0, r]), f_scale=max(sig0, 1e-4),
+                                       x_scale=np.array([0.05, 0.05, scale, scale, scale]),
+                                       max_evaluations=MAX_EVALUATIONS)  # fmt: skip
+    if not settled:
         return None  # still moving after MAX_EVALUATIONS: a radius running off to a plane's, not a cylinder
-    x = sol.x
     a = axis + x[0] * e1 + x[1] * e2
     a /= np.linalg.norm(a)
     c = centre + x[2] * e1 + x[3] * e2
