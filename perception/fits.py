@@ -103,7 +103,7 @@ def soft_l1_least_squares(
 
     r = fun(x)
     c = cost(r)
-    evaluations, damping = 1, 1e-3
+    evaluations, damping = 1, 1e-6
     while evaluations < max_evaluations:
         js = jac(x) * x_scale  # the Jacobian in scaled variables
         w = 1.0 / np.sqrt(1.0 + r * r / f2)
@@ -122,7 +122,7 @@ def soft_l1_least_squares(
                 moved = float(np.linalg.norm(step / x_scale))
                 settled = c - c_new < ftol * c or moved < xtol * (xtol + float(np.linalg.norm(x / x_scale)))
                 x, r, c = x_new, r_new, c_new
-                damping = max(damping / 3.0, 1e-12)
+                damping = max(damping / 10.0, 1e-12)
                 if settled:
                     return x, True
                 break
