@@ -423,8 +423,7 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     gap_half = 2.0 * float(np.sqrt(max(w[1], 0.0))) + 0.5 * float(noise_full.spacing_m(s.z_m))
     # every test below reads points within twice far_m of the line at most: the plate's and the window's
     # points are taken from a strip that wide once (they are a whole plate's, and there are a few lines)
-    reach = 2.0 * gp.far_m + gap_half + gp.side_m + PROFILE_HALF_M
-    c_across = float(c3 @ across)
+    reach, c_across = 2.0 * gp.far_m + gap_half + gp.side_m + PROFILE_HALF_M, float(c3 @ across)
     pp, allp, all_holes = (x[np.abs(x @ across - c_across) <= reach] for x in (pp, allp, all_holes))
     # the plate on both sides: on-plane points within side_m of the gap line
     d = pp - c3

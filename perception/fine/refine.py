@@ -265,42 +265,14 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     q, t, others = q[inside], t[inside], others[inside]
     if len(q) < 20:
         return []
-    far, far_lab = (np.zeros((0, 3)), np.zeros(0, dtype=np.int32)) if beyond is None else beyond
-    # the planes are fitted on every k-th point near the seam and beyond it (FIT_POINTS), weighted for the
-    # points left out; which points hold the seam, and its ends, are read from all of them
-    k_far = max(1, -(-len(far) // FIT_POINTS))
-    far, far_lab, weight_beyond = far[::k_far], far_lab[::k_far], weight_beyond * k_far
-    sig_far = noise.sigma_m(far[:, 2])
-    far_groups = [(int(k), np.flatnonzero(far_lab == k)) for k in np.unique(far_lab)]  # per surface, found once
+    far = (np.zeros((0, 3)), np.zeros(0, dtype=np.int32)) if beyond is None else beyond
     sig = noise.sigma_m(q[:, 2])
-    spacing = noise.spacing_m(q[:, 2])
-    margin = rp.corner_sigma * sig + spacing  # per point: the corner's and a far edge's rounding
-    k_near = max(1, -(-len(q) // FIT_POINTS))
-    q_fit, others_fit, sig_fit, margin_fit = q[::k_near], others[::k_near], sig[::k_near], margin[::k_near]
-    weight_beyond /= k_near  # the near points stand for k_near each as well
-    a, b = A, B
-    va = _side(a, b, p0, u, _towards(A, u, s))
-    vb = _side(b, a, p0, u, _towards(B, u, s))
-    line0 = p0
+    margin = rp.corner_sigma * sig + noise.spacing_m(q[:, 2])  # per point: the corner's and a far edge's rounding
     by_ray = s.joint == "v_groove"
-    last: tuple[NDArray[np.bool_], NDArray[np.bool_], FloatArray, FloatArray] | None = None
-    for _ in range(rp.iterations):
-        on_a, on_b = _fit_sets(q_fit, others_fit, (a, b), line0, u, (va, vb), sig_fit, margin_fit, rp, by_ray=by_ray)
-        if on_a.sum() < 10 or on_b.sum() < 10:
-            return []
-        fa, fb = _beyond_band(far, far_groups, sig_far, (a, b), (A.label, B.label), line0, (va, vb), rp)
-        chosen = (on_a, on_b, fa, fb)
-        if last is not None and all(np.array_equal(x, y) for x, y in zip(chosen, last, strict=True)):
-            break  # the same points as the last refit: it would give the same planes, line and sides again
-        last = chosen
-        a = _refit(a, A, q_fit[on_a], fa, weight_beyond)
-        b = _refit(b, B, q_fit[on_b], fb, weight_beyond)
-        line = plane_line(a, b, 0.5 * (p0 + p1), along=u)
-        if line is None:
-            return []
-        line0, u = line
-        va = _side(a, b, line0, u, line0 + va)
-        vb = _side(b, a, line0, u, line0 + vb)
+    fitted = _fit_faces(s, (q, others, sig, margin), (A, B), far, weight_beyond, noise, rp)
+    if fitted is None:
+        return []
+    a, b, line0, u, va, vb = fitted
     on_a, on_b = _fit_sets(q, others, (a, b), line0, u, (va, vb), sig, margin, rp, by_ray=by_ray)  # every point's
     # a V-groove's open root: the two bevels stop short of their intersection and the camera sees through
     # between them; the seam is the middle of their lower edges (the other folds' seam is the intersection)
@@ -330,6 +302,54 @@ def _refine_line(s: SeamCurve, q: FloatArray, others: FloatArray, A: Surface, B:
     if s.joint == "v_groove":
         pieces = pieces[:1]
     return _seams_of(s, pieces, q, (on_a, on_b), (a, b), line0, u, gap)
+
+
+_Faces = tuple[Surface, Surface, FloatArray, FloatArray, FloatArray, FloatArray]  # planes, line (point, along), sides
+
+
+def _fit_faces(s: SeamCurve, near: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+               faces: tuple[Surface, Surface], beyond: tuple[FloatArray, NDArray[np.int32]], weight_beyond: float,
+               noise: NoiseModel, rp: RefineParams) -> _Faces | None:  # fmt: skip
+    """Seam ``s``'s faces refitted (:func:`_refine_line`): ``near`` holds the points near it with, per point,
+    the nearest other surface's residual, the noise and the corner margin; ``beyond`` the labelled points
+    beyond the band (each weighing ``weight_beyond``). The planes, the line (a point and its direction) and
+    the directions across it into each face; None when a face keeps fewer than ten points or the planes no
+    longer meet. The planes are fitted on every k-th point near the seam and beyond it (FIT_POINTS), weighted
+    for the points left out."""
+    (q, others, sig, margin), (A, B) = near, faces
+    far, far_lab = beyond
+    k_far = max(1, -(-len(far) // FIT_POINTS))
+    far, far_lab, weight_beyond = far[::k_far], far_lab[::k_far], weight_beyond * k_far
+    sig_far = noise.sigma_m(far[:, 2])
+    far_groups = [(int(k), np.flatnonzero(far_lab == k)) for k in np.unique(far_lab)]  # per surface, found once
+    k_near = max(1, -(-len(q) // FIT_POINTS))
+    q, others, sig, margin = q[::k_near], others[::k_near], sig[::k_near], margin[::k_near]
+    weight_beyond /= k_near  # the near points stand for k_near each as well
+    p0, p1 = s.points[0], s.points[-1]
+    u = (p1 - p0) / float(np.linalg.norm(p1 - p0))
+    a, b = A, B
+    va = _side(a, b, p0, u, _towards(A, u, s))
+    vb = _side(b, a, p0, u, _towards(B, u, s))
+    line0 = p0
+    last: tuple[NDArray[np.bool_], NDArray[np.bool_], FloatArray, FloatArray] | None = None
+    for _ in range(rp.iterations):
+        on_a, on_b = _fit_sets(q, others, (a, b), line0, u, (va, vb), sig, margin, rp, by_ray=s.joint == "v_groove")
+        if on_a.sum() < 10 or on_b.sum() < 10:
+            return None
+        fa, fb = _beyond_band(far, far_groups, sig_far, (a, b), (A.label, B.label), line0, (va, vb), rp)
+        chosen = (on_a, on_b, fa, fb)
+        if last is not None and all(np.array_equal(x, y) for x, y in zip(chosen, last, strict=True)):
+            break  # the same points as the last refit: it would give the same planes, line and sides again
+        last = chosen
+        a = _refit(a, A, q[on_a], fa, weight_beyond)
+        b = _refit(b, B, q[on_b], fb, weight_beyond)
+        line = plane_line(a, b, 0.5 * (p0 + p1), along=u)
+        if line is None:
+            return None
+        line0, u = line
+        va = _side(a, b, line0, u, line0 + va)
+        vb = _side(b, a, line0, u, line0 + vb)
+    return a, b, line0, u, va, vb
 
 
 def _seams_of(s: SeamCurve, pieces: list[FloatArray], q: FloatArray,
