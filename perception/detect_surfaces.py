@@ -50,7 +50,7 @@ def detect_surfaces(
         if organized is None:
             organized = capture.points_camera()
     log.counts["raw"] = int(np.isfinite(organized[..., 2]).sum())
-    factor = work_factor(organized, capture.intrinsics.fx)
+    factor = max(1, round(organized.shape[1] / 640))
     with log.step("work_image"):
         work = _work_image(organized, factor, p)
     log.counts["work"] = int(np.isfinite(work[..., 2]).sum())
@@ -89,23 +89,6 @@ def detect_surfaces(
         info=info,
         artifacts={"surfaces": surf},
     )
-
-
-WORK_SPACING_M = 0.001  # the work image samples the part about this finely (at its median range), if not coarser
-
-
-def work_factor(organized: NDArray[np.float32], fx: float) -> int:
-    """Every how many pixels the surfaces are worked on: the image at most 640 wide, and coarser when the part
-    is so close that its samples would lie under :data:`WORK_SPACING_M` apart (a 1280-wide camera at 0.3 m
-    samples every 0.33 mm: every third pixel is 1 mm, every second 0.65). A thin face keeps as many work
-    pixels across it as at half a metre, and the coarse stage's cost does not grow as the part comes closer;
-    the fine stage works at full resolution either way."""
-    base = max(1, round(organized.shape[1] / 640))
-    z = organized[::8, ::8, 2]
-    z = z[np.isfinite(z) & (z > 0)]
-    if len(z) == 0 or fx <= 0:
-        return base
-    return max(base, round(WORK_SPACING_M * fx / float(median(z.astype(np.float64)))))
 
 
 def _work_image(organized: NDArray[np.float32], factor: int, p: DetectParams) -> NDArray[np.float64]:

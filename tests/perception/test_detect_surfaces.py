@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from perception.detect import DetectParams
-from perception.detect_surfaces import _duplicates, _full, _work_image, detect_surfaces, work_factor
+from perception.detect_surfaces import _duplicates, _full, _work_image, detect_surfaces
 from perception.errors import NoSeamFound
 from perception.evaluate import point_to_polyline_distance
 from perception.fine.types import NoiseModel, SeamCurve
@@ -165,24 +165,3 @@ def test_a_corner_seen_from_afar_is_two_faces_not_a_cylinder(family: str, seed: 
         samples = resample_polyline(truth.points_camera, 0.002)
         near = np.min([point_to_polyline_distance(samples, s.points) for s in res.seams], axis=0)
         assert float(np.mean(near < 1e-3)) >= 0.8, truth.name
-
-
-@pytest.mark.parametrize(
-    ("width", "fx", "z_m", "factor"),
-    [
-        (1280, 920.0, 0.50, 2),  # 0.54 mm pixels: every second is 1.09 mm
-        (1280, 920.0, 0.80, 2),  # 0.87 mm pixels: at most 640 wide all the same
-        (1280, 920.0, 0.30, 3),  # 0.33 mm pixels: every third is 0.98 mm
-        (1280, 920.0, 0.20, 5),  # 0.22 mm pixels: 4.6 of them to the millimetre
-        (640, 460.0, 0.50, 1),  # 1.09 mm pixels
-        (640, 460.0, 0.15, 3),  # 0.33 mm pixels
-    ],
-)
-def test_the_work_image_samples_the_part_about_a_millimetre_apart_at_most_640_wide(
-    width: int, fx: float, z_m: float, factor: int
-) -> None:
-    h = width * 9 // 16
-    pts = np.full((h, width, 3), np.nan, np.float32)
-    pts[h // 4 : 3 * h // 4, width // 4 : 3 * width // 4] = (0.0, 0.0, z_m)  # the part, its median range z_m
-    assert work_factor(pts, fx) == factor
-    assert work_factor(np.full((h, width, 3), np.nan, np.float32), fx) == max(1, round(width / 640))  # no depth
