@@ -234,8 +234,10 @@ def _plane_cylinder(P: Surface, C: Surface, pp: FloatArray, pc: FloatArray, nois
     z = float(median(np.vstack([pp, pc])[:, 2]))
     sig = float(noise.sigma_m(z))
     reach = fp.near_m + 3.0 * sig + 3.0 * float(noise.spacing_m(z))
-    # concave: the plate's points are outside the cylinder, the cylinder's above the plate
-    if median(C.residual(pp)) <= 0.0 or median(P.residual(pc)) < fp.concave_sigma * sig:
+    # concave: the plate's points are not inside the cylinder (at its foot they lie on it, within the noise
+    # and the radius's own error: a pipe fitted on a few hundred pixels at 0.8 m reads a millimetre wide; a cap
+    # on a pipe lies a radius inside), and the cylinder's stand above the plate
+    if median(C.residual(pp)) <= -fp.concave_sigma * sig or median(P.residual(pc)) < fp.concave_sigma * sig:
         return []
     n_bins = max(36, int(np.ceil(2 * np.pi * C.radius / fp.bin_m)))
     theta = (np.arange(n_bins) + 0.5) * 2 * np.pi / n_bins

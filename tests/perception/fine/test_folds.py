@@ -210,3 +210,32 @@ def test_the_local_turn_of_a_fold_is_its_angle_and_of_a_bent_panels_facets_the_b
     assert turn is not None and np.degrees(turn) == pytest.approx(np.degrees(0.010 / R), abs=0.3)
     # too few points beside the line: nothing to tell
     assert local_turn(a[:5], b, p0, u, na + nb, (-0.04, 0.04), 0.01) is None
+
+
+def test_a_pipe_whose_radius_reads_a_millimetre_wide_still_meets_its_plate_and_a_cap_does_not() -> None:
+    # zoo dev pipe 11 (OAK-D-like at 0.78 m, sigma 1.1 mm): the pipe fitted on 537 pixels read its radius about
+    # a millimetre wide, the plate's points at its foot lay 0.8 mm inside it in the median, and the ring was
+    # rejected as convex. Within the noise of the cylinder is at its foot; a cap lies a radius inside
+    from perception.fine.folds import FoldParams, _plane_cylinder
+    from perception.fine.types import NoiseModel, Surface
+
+    noise = NoiseModel(sigma_1m_m=0.0011 / 0.78**2, floor_m=5e-5, pixel_angle_rad=0.002)
+    R, wide = 0.040, 0.001  # the pipe's true radius and the fit's error
+    centre = np.array([0.0, 0.0, 0.78])
+    up = np.array([0.0, 0.0, -1.0])  # towards the camera, which looks down along +z
+    plate = Surface(0, "plane", up, 0.78, 0.0011, 4000, centre, 0.78)
+    pipe = Surface(1, "cylinder", np.zeros(3), 0.0, 0.0011, 500, centre + 0.03 * up, 0.75, axis=up, centre=centre,
+                   radius=R + wide)  # fmt: skip
+    theta = np.linspace(0.0, 2 * np.pi, 90, endpoint=False)
+    ring = np.column_stack([np.cos(theta), np.sin(theta), np.zeros_like(theta)])
+    foot = np.vstack([centre + (R + d) * ring for d in (0.0, 0.001, 0.002)])  # the plate's pixels at the pipe's foot
+    side = np.vstack([centre + R * ring + h * up for h in (0.001, 0.003, 0.005)])  # the pipe's, just above the plate
+    (seam,) = _plane_cylinder(plate, pipe, foot, side, noise, FoldParams())
+    assert seam.kind == "curved" and seam.joint == "fillet" and len(seam.points) >= 36
+    np.testing.assert_allclose(np.linalg.norm(seam.points - centre, axis=1), R + wide, atol=1e-12)  # the fitted ring
+    np.testing.assert_allclose(seam.points[:, 2], 0.78, atol=1e-12)  # on the plate
+    # a cap on the pipe's top: its points lie a radius inside the cylinder, the pipe's below it: no ring
+    cap = Surface(2, "plane", up, 0.68, 0.0011, 2000, centre + 0.1 * up, 0.68)
+    inside = np.vstack([centre + 0.1 * up + r * ring for r in (0.0, 0.01, 0.02)])
+    below = np.vstack([centre + R * ring + h * up for h in (0.095, 0.097, 0.099)])
+    assert _plane_cylinder(cap, pipe, inside, below, noise, FoldParams()) == []
