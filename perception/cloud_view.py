@@ -5,8 +5,11 @@ bands and rays off one. Here the cloud is looked at from its sensor's side (:fun
 rule for which side is outside) by a virtual pinhole camera whose pixel is about the cloud's sample
 spacing. Each pixel keeps the nearest point along its ray (a z-buffer) at its exact position: the points
 are not moved onto the pixel centres, so nothing is lost to the grid but the points behind others; single
-empty pixels between points take their nearest neighbour's point. Seams found in that view are mapped back
-with ``X_cloud_camera``.
+empty pixels between points take their nearest neighbour's point. A cloud that holds points behind its
+visible faces (scans merged, a mesh sampled on every face, a lower plate sampled under an upper one) is
+looked at with pixels coarse enough for its faces' samples to cover them, and a point still seen through a
+hole in a face is dropped for the face's own. Seams found in that view are mapped back with
+``X_cloud_camera``.
 """
 
 from __future__ import annotations
@@ -24,6 +27,11 @@ FloatArray = NDArray[np.float64]
 PIXEL_PER_SPACING = 1.25  # the virtual pixel, in the cloud's (angular) sample spacings: coarser, so that a
 # surface's samples leave no pixel empty for what lies behind it to show through
 MAX_SIDE_PX = 1600
+MAX_SEEN_THROUGH = 0.06  # of the pixels showing a point behind the faces: below this, holes come one or two
+# together, and _drop_seen_through gives them the face's point (see _covering_focal)
+HOLES_CLOSE = 2.5  # holes between a face's samples: their share falls this much with pixels 1.25^2 as wide
+SEEN_THROUGH_PIXELS = 3.0  # a pixel's point this many pixel widths behind its neighbours on both sides lies
+# behind a surface whose samples left its pixel empty: no surface sampled at the pixel holds a pit that deep
 
 
 @dataclass(frozen=True)
@@ -44,6 +52,47 @@ def _angular_spacing(points: FloatArray, eye: FloatArray, *, neighbour: int, sam
     q = points[np.random.default_rng(0).choice(len(points), min(sample, len(points)), replace=False)]
     d, _ = cKDTree(points).query(q, k=neighbour + 1)
     return float(np.median(d[:, neighbour] / np.maximum(np.linalg.norm(q - eye, axis=1), 1e-9)))
+
+
+def _in_front(cam: FloatArray, xn: FloatArray, yn: FloatArray, f: float, depth_per_range: float) -> NDArray[np.bool_]:
+    """Which of the (N, 3) camera-frame points ``cam`` (at normalized image coordinates ``xn``, ``yn``) lie
+    within ``depth_per_range`` times their range of the nearest point in their pixel of a camera of focal
+    length ``f`` (coarse, so that a face's samples fill its pixels): the points seen, not those behind."""
+    key = np.floor(f * xn).astype(np.int64) * 1_000_003 + np.floor(f * yn).astype(np.int64)
+    _, inv = np.unique(key, return_inverse=True)
+    nearest = np.full(int(inv.max()) + 1, np.inf)
+    np.minimum.at(nearest, inv, cam[:, 2])
+    return np.asarray(cam[:, 2] <= nearest[inv] * (1.0 + depth_per_range))
+
+
+def _covering_focal(cam: FloatArray, xn: FloatArray, yn: FloatArray, f: float) -> float:
+    """``f``, or coarser by steps of 1.25 (four at most) until at most :data:`MAX_SEEN_THROUGH` of the pixels
+    show a point behind the faces (:func:`_seen_through_share`), when those are seen through holes between
+    the faces' samples. A scan's grid fills every pixel 1.25 spacings wide; a mesh sampled at random, or
+    scans merged, leave a third of them empty at that size, and through the holes the layer behind the faces
+    (the lower plate under a lap) shows. Such holes close fast with coarser pixels (their share falls as
+    exp(-points per pixel): by more than :data:`HOLES_CLOSE` over two steps); points behind for other reasons
+    (a face seen at a grazing angle, mixed points along an edge, a tube's far wall seen past its rim) stay,
+    and are no reason to give up resolution."""
+    share = _seen_through_share(cam, xn, yn, f)
+    if share <= MAX_SEEN_THROUGH or share < HOLES_CLOSE * _seen_through_share(cam, xn, yn, f / 1.25**2):
+        return f
+    for _ in range(4):
+        f /= 1.25
+        if _seen_through_share(cam, xn, yn, f) <= MAX_SEEN_THROUGH:
+            break
+    return f
+
+
+def _seen_through_share(cam: FloatArray, xn: FloatArray, yn: FloatArray, f: float) -> float:
+    """The share of the pixels of a camera of focal length ``f`` whose nearest point lies behind the faces:
+    behind its pixel's nearest point in a camera of half the focal length, whose pixels the faces' samples
+    fill (:func:`_in_front`)."""
+    seen = _in_front(cam, xn, yn, 0.5 * f, SEEN_THROUGH_PIXELS / f)
+    key = np.floor(f * xn).astype(np.int64) * 1_000_003 + np.floor(f * yn).astype(np.int64)
+    order = np.lexsort((cam[:, 2], key))
+    nearest = order[np.r_[True, key[order][1:] != key[order][:-1]]]
+    return 1.0 - float(np.mean(seen[nearest]))
 
 
 def _fill_holes(organized: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -72,6 +121,40 @@ def _fill_holes(organized: NDArray[np.float32]) -> NDArray[np.float32]:
     fill = ~valid & (count >= 3)
     out = organized.copy()
     out[fill] = pick[fill]
+    return out
+
+
+def _drop_seen_through(organized: NDArray[np.float32], depth_per_range: float) -> NDArray[np.float32]:
+    """Pixels whose point was seen through the sampling gaps of a surface in front of it, emptied (for
+    :func:`_fill_holes` to give them the front surface's point). A cloud merged from several views, or
+    sampled under an upper plate, holds points behind its visible surfaces; where that surface's samples
+    leave a pixel empty, the z-buffer keeps the point behind: a pit of another layer's depth in the middle of
+    the face. Such a pixel has a point more than ``depth_per_range`` times its range in front of it in every
+    one of the eight directions round it (within two pixels), and those points are one layer: their depths
+    spread less than twice as far as the pit lies behind the deepest of them. A background pixel beside an
+    occluding edge, in a gap, or at a fold's root has its own surface on at least one side; a pixel at a
+    ragged edge has points of several depths round it."""
+    z = organized[..., 2].astype(np.float64)
+    H, W = z.shape
+    r = 2
+    pad = np.pad(z, r, constant_values=np.nan)
+    limit = z * (1.0 - depth_per_range)
+    sectors = np.zeros((8, H, W), dtype=bool)
+    front_lo = np.full((H, W), np.inf)
+    front_hi = np.full((H, W), -np.inf)
+    with np.errstate(invalid="ignore"):
+        for dy in range(-r, r + 1):
+            for dx in range(-r, r + 1):
+                if dy == dx == 0:
+                    continue
+                nb = pad[r + dy : r + dy + H, r + dx : r + dx + W]
+                near = nb < limit
+                sectors[int(np.round(np.arctan2(dy, dx) / (np.pi / 4))) % 8] |= near
+                front_lo = np.where(near, np.minimum(front_lo, nb), front_lo)
+                front_hi = np.where(near, np.maximum(front_hi, nb), front_hi)
+    seen_through = sectors.all(axis=0) & (front_hi - front_lo < 2.0 * (z - front_hi))
+    out = organized.copy()
+    out[seen_through] = np.nan
     return out
 
 
@@ -194,6 +277,8 @@ def view_cloud(points: FloatArray, viewpoint: FloatArray) -> CloudView:
     own = not np.any(eye)
     f = 1.0 / (PIXEL_PER_SPACING * max(_angular_spacing(cam, np.zeros(3), neighbour=1 if own else 2), 1e-9))
     xn, yn = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
+    if not own:
+        f = _covering_focal(cam, xn, yn, f)
     span = max(float(np.ptp(xn)), float(np.ptp(yn)), 1e-9)
     f = min(f, (MAX_SIDE_PX - 5) / span)
     cx, cy = -f * float(xn.min()) + 2.0, -f * float(yn.min()) + 2.0
@@ -212,6 +297,8 @@ def view_cloud(points: FloatArray, viewpoint: FloatArray) -> CloudView:
     keep = order[first]
     organized = np.full((H, W, 3), np.nan, dtype=np.float32)
     organized[v[keep], u[keep]] = cam[keep]
+    if not own:  # seen from its own sensor, every point was seen: none lies behind another's sampling gaps
+        organized = _drop_seen_through(organized, SEEN_THROUGH_PIXELS / f)
     organized = _fill_holes(organized)
     X = np.eye(4)
     X[:3, :3], X[:3, 3] = R, eye

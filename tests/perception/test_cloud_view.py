@@ -37,6 +37,33 @@ def test_each_pixel_keeps_the_nearest_point_where_it_was_measured() -> None:
     assert view.X_cloud_camera[:3, 3] == pytest.approx([0.0, 0.0, 0.5])
 
 
+def test_a_layer_seen_through_the_gaps_of_a_randomly_sampled_plate_is_not_kept() -> None:
+    """A lap sampled like a merged scan: the lower plate sampled under the upper one too, both at random
+    (a mesh sampled by area, so some pixels of the upper plate hold none of its points), 6 mm apart, seen
+    from above a cloud in a z-up frame. Inside the upper plate every pixel holds an upper plate's point;
+    beside its edge, the lower plate's pixels keep the lower plate's points (the edge is not moved)."""
+    rng = np.random.default_rng(3)
+
+    def plate(x0: float, x1: float, z: float, n: int) -> np.ndarray:
+        xy = rng.uniform([x0, -0.05], [x1, 0.05], (n, 2))
+        return np.column_stack([xy, np.full(n, z) + rng.normal(0.0, 2e-4, n)])
+
+    lower = plate(-0.06, 0.06, 0.0, 16000)
+    upper = plate(-0.06, 0.02, 0.006, 10700)  # about the same density: its edge at x = 20 mm
+    view = view_cloud(rng.permutation(np.vstack([lower, upper])), np.array([0.0, 0.0, 0.5]))
+    kept = view.organized.reshape(-1, 3)
+    pts = transform_points(view.X_cloud_camera, kept[np.isfinite(kept[:, 2])])
+    inside = (pts[:, 0] < 0.018) & (pts[:, 0] > -0.055) & (np.abs(pts[:, 1]) < 0.045)
+    beside = (pts[:, 0] > 0.022) & (pts[:, 0] < 0.055) & (np.abs(pts[:, 1]) < 0.045)
+    assert inside.sum() > 1000 and beside.sum() > 400
+    assert np.all(pts[inside, 2] > 0.004)  # every one an upper plate's point (a fifth without the filters)
+    assert np.all(pts[beside, 2] < 0.002)
+    # the lower plate's points reach the edge: within two pixels of it along its whole length
+    near_edge = pts[(pts[:, 2] < 0.002) & (pts[:, 0] > 0.02)]
+    bins = np.digitize(near_edge[:, 1], np.linspace(-0.045, 0.045, 10))
+    assert max(float(near_edge[bins == b, 0].min()) for b in range(1, 10)) < 0.02 + 2 * 0.5 / view.intrinsics.fx
+
+
 def test_a_bad_cloud_or_viewpoint_is_refused() -> None:
     flat = _grid_cloud()
     with pytest.raises(PerceptionError, match="N >= 5"):
