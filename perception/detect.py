@@ -25,10 +25,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.butt import butt_from_surfaces
-from perception.capture import Capture, PointCloud
+from perception.capture import MAX_PLAUSIBLE_DEPTH_M, Capture, PointCloud
 from perception.cloud import surface_spacing
 from perception.detect_params import DetectParams, StepLog
-from perception.errors import NoSeamFound, PerceptionError
+from perception.errors import BadCapture, NoSeamFound, PerceptionError
 from perception.fits import fit_plane
 from perception.organized import veil_mask
 from perception.path import interpolate_rows, sample_uniform, torch_poses
@@ -332,6 +332,10 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
     p = params or DetectParams()
     if len(cloud.points) < 50:
         raise PerceptionError(f"{cloud.source}: only {len(cloud.points)} points")
+    size = float(np.linalg.norm(np.ptp(cloud.points, axis=0)))
+    if size > MAX_PLAUSIBLE_DEPTH_M:
+        raise BadCapture(f"the cloud spans {size:.0f} m across; clouds are read in metres (one in millimetres "
+                         "must be scaled by 0.001)", path=cloud.source)  # fmt: skip
     spacing = surface_spacing(cloud.points)
     if p.method == "surfaces":  # its own viewpoint rule and range image: no voxel, no viewpoint guess here
         return _detect_cloud_surfaces(cloud, p, spacing)

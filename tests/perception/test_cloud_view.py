@@ -64,6 +64,14 @@ def test_a_layer_seen_through_the_gaps_of_a_randomly_sampled_plate_is_not_kept()
     assert max(float(near_edge[bins == b, 0].min()) for b in range(1, 10)) < 0.02 + 2 * 0.5 / view.intrinsics.fx
 
 
+def test_a_cloud_in_millimetres_is_refused_with_the_reason() -> None:
+    from perception.errors import BadCapture
+
+    cloud, _ = _tee_cloud(make_X(np.eye(3), [0.0, 0.0, 0.0]))
+    with pytest.raises(BadCapture, match=r"millimetres must be scaled by 0\.001"):
+        detect_cloud(PointCloud(cloud * 1000.0, source="tee_mm.ply"))
+
+
 def test_a_bad_cloud_or_viewpoint_is_refused() -> None:
     flat = _grid_cloud()
     with pytest.raises(PerceptionError, match="N >= 5"):
