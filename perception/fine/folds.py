@@ -31,6 +31,9 @@ class FoldParams:
     crease_window_px: float = 12.0  # the local turn is measured on both faces this many work pixels either side
 
 
+SHALLOW_TURN_RAD = np.radians(80.0)
+
+
 def rays_onto(x: FloatArray, s: Surface) -> FloatArray:
     """Where the camera's rays through the (N, 3) points or directions ``x`` meet plane ``s``."""
     return np.asarray(x * (-s.offset / (x @ s.normal))[:, None])
@@ -61,8 +64,16 @@ def contact_points(p: FloatArray, labels: NDArray[np.int32], pair: Pair) -> tupl
     return pa[np.isfinite(pa[:, 2])], pb[np.isfinite(pb[:, 2])]
 
 
-def joint_type(na: FloatArray, nb: FloatArray, up: FloatArray, standing_height_m: float, lap_height_m: float) -> Joint:
-    """Name a fold by how its faces stand relative to ``up`` (the support's normal)."""
+def joint_type(na: FloatArray, nb: FloatArray, up: FloatArray | None, standing_height_m: float,
+               lap_height_m: float) -> Joint:  # fmt: skip
+    """Name a fold by how its faces stand relative to ``up`` (the support's normal). With no support (a
+    cloud of the part alone) nothing says which way is up: a shallow valley (faces turning by under
+    :data:`SHALLOW_TURN_RAD`, an included angle over 100 degrees) is a groove however it lies, and the
+    others are named as though the camera looked down."""
+    if up is None:
+        if float(na @ nb) > np.cos(SHALLOW_TURN_RAD):
+            return "v_groove"
+        up = np.array([0.0, 0.0, -1.0])
     ca, cb = abs(float(na @ up)), abs(float(nb @ up))
     if ca < 0.3 and cb < 0.3:  # both faces stand within about 17 degrees of vertical
         return "inside_corner"
@@ -86,7 +97,7 @@ def fold_seams(
     fp = params or FoldParams()
     p = np.asarray(points, dtype=np.float64)
     lab = surfaces.labels
-    up = surfaces.surfaces[min(support)].normal if support else np.array([0.0, 0.0, -1.0])
+    up = surfaces.surfaces[min(support)].normal if support else None
     out: list[SeamCurve] = []
     for pair in pairs:
         if pair.a in support or pair.b in support:
@@ -107,7 +118,7 @@ def fold_seams(
 
 
 def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, pa: FloatArray, pb: FloatArray,
-                noise: NoiseModel, fp: FoldParams, up: FloatArray,
+                noise: NoiseModel, fp: FoldParams, up: FloatArray | None,
                 contact_px: NDArray[np.int64]) -> list[SeamCurve]:  # fmt: skip
     if abs(float(A.normal @ B.normal)) > np.cos(fp.min_turn_rad):
         return []
@@ -152,7 +163,7 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
         if t1 - t0 < fp.min_length_m:
             continue
         pts = np.array([p0 + t0 * u, p0 + t1 * u])
-        height = _standing_height(p, lab, A, B, p0, u, up)
+        height = _standing_height(p, lab, A, B, p0, u, np.array([0.0, 0.0, -1.0]) if up is None else up)
         joint = joint_type(A.normal, B.normal, up, height, fp.lap_height_m)
         support = int(ca[s0:s1].sum() + cb[s0:s1].sum())
         out.append(SeamCurve("linear", joint, pts, np.tile(A.normal, (2, 1)), np.tile(B.normal, (2, 1)),

@@ -116,6 +116,23 @@ def test_joint_types_follow_how_the_faces_stand() -> None:
     assert joint_type(np.array([np.cos(lean), 0.0, np.sin(lean)]), y, up, 0.1, 0.014) == "inside_corner"
 
 
+def test_with_no_support_a_shallow_valley_is_a_groove_however_it_lies() -> None:
+    """A cloud of the part alone has no table to say which way is up. An obtuse groove (130 degrees included:
+    its faces turn by 50) seen with one face square to the camera was a "fillet" by the camera's axis (and
+    never traced), a "v_groove" when seen a few degrees otherwise; it is a groove however it lies, up to an
+    included angle of 100 degrees (a turn under 80). A square fold is named by the camera's axis as before."""
+    down = np.array([0.0, 0.0, -1.0])
+    x = np.array([1.0, 0.0, 0.0])
+    for tilt in np.radians([0.0, 5.0, 12.0, 25.0]):
+        for turn in np.radians([35.0, 50.0, 79.0]):
+            a = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])
+            b = np.array([np.sin(tilt + turn), 0.0, -np.cos(tilt + turn)])
+            assert joint_type(a, b, None, 0.01, 0.014) == "v_groove"
+    assert joint_type(down, np.array([np.sin(0.5), 0.0, -np.cos(0.5)]), down, 0.1, 0.014) == "fillet"  # 29 deg
+    assert joint_type(down, x, None, 0.08, 0.014) == "fillet"
+    assert joint_type(down, x, None, 0.008, 0.014) == "lap"
+
+
 def _rib_corner(far_share: float, *, convex: bool = False, seed: int = 0):
     """A floor (z = 0) and a rib's face (x = 0, standing up) meeting along the y axis, seen from (0.5, 0, 0.6)
     with 1.5 mm of noise: the two planes (towards the camera), each side's contact points (the floor's within 8
