@@ -46,6 +46,7 @@ class RealItem:
     image: str | None = None
     note: str = ""
     viewpoint: list[float] | None = None  # where the detector looked at the cloud from (the cloud's frame)
+    perturbed: list[bool] = field(default_factory=list)  # per draw with points dropped at random: passed
 
     @property
     def scored(self) -> bool:
@@ -319,11 +320,46 @@ def draw(item: RealItem, cloud: Any, paths: list[np.ndarray], ref: dict[str, Any
     plt.close(fig)
 
 
-def run_real(realdata: Path, out: Path | None = None, method: Method = "refined") -> list[RealItem]:
+def perturbed_passes(realdata: Path, rel: str, ref: dict[str, Any], *, draws: int, dropout: float,
+                     method: Method = "refined") -> list[bool]:  # fmt: skip
+    """Whether referenced cloud ``rel`` still passes with a share ``dropout`` of its points dropped at random,
+    in each of ``draws`` seeded draws: a result that one sensor's sampling happens to give, and another
+    sampling of the same part does not, is luck, not a detector that works on real data."""
+    from dataclasses import replace
+
+    from perception.capture import read_point_cloud
+    from perception.detect import DetectParams, detect_cloud
+    from perception.errors import PerceptionError
+
+    pc = read_point_cloud(realdata / rel)
+    out = []
+    for seed in range(draws):
+        keep = np.random.default_rng(seed).random(len(pc.points)) >= dropout
+        cloud = replace(pc, points=pc.points[keep], colors=None if pc.colors is None else pc.colors[keep],
+                        normals=None if pc.normals is None else pc.normals[keep])  # fmt: skip
+        item = RealItem(rel, "cloud")
+        paths: list[np.ndarray] = []
+        try:
+            res = detect_cloud(cloud, DetectParams(method=method))
+            item.seams = [{"kind": s.kind, "length_m": s.length_m} for s in res.seams]
+            paths = [np.asarray(s.points) for s in res.seams]
+        except PerceptionError:
+            pass  # no seam (or refused): every reference seam uncovered
+        _score(item, paths, ref)
+        out.append(bool(item.passed))
+    return out
+
+
+def run_real(realdata: Path, out: Path | None = None, method: Method = "refined", *, draws: int = 0,
+             dropout: float = 0.02) -> list[RealItem]:  # fmt: skip
+    """Every item of ``realdata`` detected (and drawn under ``out``); each referenced cloud also in ``draws``
+    draws with a share ``dropout`` of its points dropped (:func:`perturbed_passes`)."""
     refs = _references(realdata)
     items = []
     for rel, kind in discover(realdata):
         item, cloud, paths = run_item(realdata, rel, kind, refs, method)
+        if draws and kind == "cloud" and rel in refs:
+            item.perturbed = perturbed_passes(realdata, rel, refs[rel], draws=draws, dropout=dropout, method=method)
         if out is not None and cloud is not None:
             out.mkdir(parents=True, exist_ok=True)
             img = out / (rel.replace("/", "__") + ".png")

@@ -29,6 +29,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="surfaces",
         help="the fine stage (clouds go through a range image from their viewpoint for surfaces)",
     )
+    p.add_argument("--draws", type=int, default=0,
+                   help="also detect each referenced cloud this many times with points dropped at random, and "
+                   "show how often it still passes (default 0: not run)")  # fmt: skip
+    p.add_argument("--dropout", type=float, default=0.02,
+                   help="the share of points each such draw drops (default 0.02)")  # fmt: skip
     p.set_defaults(func=run)
 
 
@@ -43,11 +48,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"weldcell bench real: no real data at {realdata} (give --realdata); nothing to do")
         return 0
     out = Path(args.out) if args.out else None
+    if args.draws < 0 or not 0.0 <= args.dropout < 1.0:
+        print("weldcell bench real: --draws must be >= 0 and --dropout in [0, 1)")
+        return 2
     console = Console(stderr=True)
     with console.status("detecting on the real items"):
-        items = run_real(realdata, out, cast(Method, args.method))
+        items = run_real(realdata, out, cast(Method, args.method), draws=args.draws, dropout=args.dropout)
     doc = {"realdata": str(realdata), "items": [i.to_json() for i in items],
-           "scored": sum(i.scored for i in items), "passed": sum(bool(i.passed) for i in items)}  # fmt: skip
+           "scored": sum(i.scored for i in items), "passed": sum(bool(i.passed) for i in items),
+           "draws": args.draws, "dropout": args.dropout}  # fmt: skip
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / "bench.json").write_text(json.dumps(doc, indent=1))
@@ -56,15 +65,25 @@ def run(args: argparse.Namespace) -> int:
         return 0
     t = Table(title=f"real data ({realdata}): a referenced item passes when every reference seam is >= "
                     f"{COVER_SHARE:.0%} covered within its tolerance and no detected seam is far from all")  # fmt: skip
-    for c in ("item", "kind", "points", "seams", "time s", "reference", "coverage", "false", "pass", "notes"):
+    columns = ["item", "kind", "points", "seams", "time s", "reference", "coverage", "false", "pass"]
+    if args.draws:
+        columns.append(f"pass, {args.dropout:.0%} dropped")
+    for c in [*columns, "notes"]:
         t.add_column(c, overflow="fold")
     for i in items:
         seams = ", ".join(f"{s['kind'][0]}{s['length_m'] * 1000:.0f}" for s in i.seams) or "0"
         notes = i.reason if i.outcome != "seams" else i.note
-        t.add_row(i.item, i.kind, str(i.points), seams, f"{i.time_s:.2f}",
-                  f"tol {i.tolerance_m * 1000:.0f} mm" if i.tolerance_m else "-",
-                  ", ".join(f"{c:.0%}" for c in i.coverage) or "-", str(i.false_seams) if i.scored else "-",
-                  "-" if i.passed is None else ("yes" if i.passed else "no"), notes)  # fmt: skip
+        row = [i.item, i.kind, str(i.points), seams, f"{i.time_s:.2f}",
+               f"tol {i.tolerance_m * 1000:.0f} mm" if i.tolerance_m else "-",
+               ", ".join(f"{c:.0%}" for c in i.coverage) or "-", str(i.false_seams) if i.scored else "-",
+               "-" if i.passed is None else ("yes" if i.passed else "no")]  # fmt: skip
+        if args.draws:
+            row.append(f"{sum(i.perturbed)}/{len(i.perturbed)}" if i.perturbed else "-")
+        t.add_row(*row, notes)
     Console(width=200).print(t)
     print(f"{doc['passed']} of {doc['scored']} referenced items pass; {len(items)} items in all")
+    if args.draws:
+        runs = [p for i in items for p in i.perturbed]
+        print(f"with {args.dropout:.0%} of the points dropped: {sum(runs)} of {len(runs)} draws pass "
+              f"({args.draws} per referenced cloud)")
     return 0

@@ -6,6 +6,7 @@ three known items, so that the counts the command prints can be compared to them
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -26,12 +27,15 @@ ITEMS = [SCAN, FRAME, RealItem("c/photos", "photos", outcome="not_run", reason="
 
 
 @pytest.fixture
-def calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[Path, Path | None, str]]:
-    seen: list[tuple[Path, Path | None, str]] = []
+def calls(monkeypatch: pytest.MonkeyPatch) -> list[tuple[Any, ...]]:
+    seen: list[tuple[Any, ...]] = []
 
-    def fake_run_real(realdata: Path, out: Path | None = None, method: str = "refined") -> list[RealItem]:
-        seen.append((realdata, out, method))
-        return ITEMS
+    def fake_run_real(realdata: Path, out: Path | None = None, method: str = "refined", *, draws: int = 0,
+                      dropout: float = 0.02) -> list[RealItem]:  # fmt: skip
+        seen.append((realdata, out, method) if not draws else (realdata, out, method, draws, dropout))
+        if not draws:
+            return ITEMS
+        return [replace(SCAN, perturbed=[True, False, True]), replace(FRAME), ITEMS[2]]
 
     monkeypatch.setattr(cell.real_bench, "run_real", fake_run_real)
     return seen
@@ -79,3 +83,24 @@ def test_the_table_lists_every_item_and_ends_with_the_count(
     assert by_item["b/frame"][1:] == ["rgbd frame", "300", "0", "0.00", "tol 10 mm", "0%", "0", "no",
                                       "no two surfaces meet"]  # fmt: skip
     assert by_item["c/photos"][5:] == ["-", "-", "-", "-", "photos without depth"]
+
+
+def test_the_dropout_draws_are_counted_per_item_and_in_all(
+    calls: list[Any], capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    assert main(["bench", "real", "--realdata", str(tmp_path), "--draws", "3", "--dropout", "0.05"]) == 0
+    assert calls == [(tmp_path, None, "surfaces", 3, 0.05)]
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-1] == "with 5% of the points dropped: 2 of 3 draws pass (3 per referenced cloud)"
+    rows = [[c.strip() for c in line.split("│")[1:-1]] for line in lines if line.startswith("│")]
+    by_item = {r[0]: r for r in rows if r[0]}
+    assert by_item["a/scan.ply"][8:10] == ["yes", "2/3"] and by_item["b/frame"][9] == "-"
+
+
+@pytest.mark.parametrize("argv", [["--draws", "-1"], ["--dropout", "1.0"], ["--dropout", "-0.1"]])
+def test_a_bad_draw_count_or_dropout_share_is_refused(
+    argv: list[str], calls: list[Any], capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    assert main(["bench", "real", "--realdata", str(tmp_path), *argv]) == 2
+    assert "--draws must be >= 0 and --dropout in [0, 1)" in capsys.readouterr().out
+    assert calls == []
