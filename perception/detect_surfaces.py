@@ -16,6 +16,7 @@ Each step is timed and counted in the result's ``timing_s`` (``step_<name>``) an
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -183,11 +184,16 @@ def _full_resolution_steps(
     # searches, like the paper's segmenter, look at the whole image: the surfaces at the work resolution,
     # the inner gaps at each plate's depth; merge's checks lie on refined seams' lines, inside their bands)
     read = np.zeros(organized.shape[:2], dtype=bool)
-    with log.step("refine"):
-        curves, _ = refine_seams(curves, organized, capture.intrinsics, surf, noise_full, read=read)
-    with log.step("inner_gaps"):
-        curves += inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=skip,
-                                  color_rgb=capture.color_rgb, pairs=pairs, found=curves)  # fmt: skip
+    # the inner gaps read neither the refined seams (only which pairs a butt seam parts already, and the
+    # refinement leaves butt seams as they are) nor the crop: they are searched on a second core meanwhile
+    butts = [c for c in curves if c.joint == "butt"]
+    with ThreadPoolExecutor(max_workers=1) as second_core:
+        gaps_job = second_core.submit(inner_gap_seams, organized, capture.intrinsics, surf, noise_full, support=skip,
+                                      color_rgb=capture.color_rgb, pairs=pairs, found=butts)  # fmt: skip
+        with log.step("refine"):
+            curves, _ = refine_seams(curves, organized, capture.intrinsics, surf, noise_full, read=read)
+        with log.step("inner_gaps"):  # the time waited for them past the refinement
+            curves += gaps_job.result()
     with log.step("steps"):
         steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=skip,
                            read=read)  # fmt: skip
