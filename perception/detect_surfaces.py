@@ -15,8 +15,10 @@ Each step is timed and counted in the result's ``timing_s`` (``step_<name>``) an
 
 from __future__ import annotations
 
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from typing import Any
 
 import numpy as np
@@ -158,6 +160,15 @@ def _work_resolution_steps(
     return curves, surf, noise, support, skip, pairs
 
 
+FINE_THREADS = 2  # the full-resolution steps' threads (the cell's computer has two cores or more) ...
+
+
+def _fine_threads() -> int:
+    """... unless the process is told to use one (``OMP_NUM_THREADS=1``, as each of a bench's worker
+    processes is, several running at once on those cores)."""
+    return 1 if os.environ.get("OMP_NUM_THREADS") == "1" else FINE_THREADS
+
+
 def _full_resolution_steps(
     curves: list[SeamCurve],
     surf: SurfaceSet,
@@ -185,15 +196,21 @@ def _full_resolution_steps(
     # the inner gaps at each plate's depth; merge's checks lie on refined seams' lines, inside their bands)
     read = np.zeros(organized.shape[:2], dtype=bool)
     # the inner gaps read neither the refined seams (only which pairs a butt seam parts already, and the
-    # refinement leaves butt seams as they are) nor the crop: they are searched on a second core meanwhile
+    # refinement leaves butt seams as they are) nor the crop: they are searched on one core while the seams
+    # are refined, each on its own, on both
     butts = [c for c in curves if c.joint == "butt"]
-    with ThreadPoolExecutor(max_workers=1) as second_core:
-        gaps_job = second_core.submit(inner_gap_seams, organized, capture.intrinsics, surf, noise_full, support=skip,
-                                      color_rgb=capture.color_rgb, pairs=pairs, found=butts)  # fmt: skip
+    threads = _fine_threads()
+    with ThreadPoolExecutor(max_workers=threads) if threads > 1 else nullcontext() as pool:
+
+        def inner_gaps() -> list[SeamCurve]:
+            return inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=skip,
+                                   color_rgb=capture.color_rgb, pairs=pairs, found=butts)  # fmt: skip
+
+        gaps_job = pool.submit(inner_gaps) if pool is not None else None
         with log.step("refine"):
-            curves, _ = refine_seams(curves, organized, capture.intrinsics, surf, noise_full, read=read)
-        with log.step("inner_gaps"):  # the time waited for them past the refinement
-            curves += gaps_job.result()
+            curves, _ = refine_seams(curves, organized, capture.intrinsics, surf, noise_full, read=read, pool=pool)
+        with log.step("inner_gaps"):  # with threads, the time waited for them past the refinement
+            curves += gaps_job.result() if gaps_job is not None else inner_gaps()
     with log.step("steps"):
         steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=skip,
                            read=read)  # fmt: skip

@@ -11,6 +11,7 @@ seen from above), the seam is the middle of the two surfaces' facing edges inste
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -135,35 +136,48 @@ def refine_seams(
     *,
     params: RefineParams | None = None,
     read: NDArray[np.bool_] | None = None,
+    pool: Executor | None = None,
 ) -> tuple[list[SeamCurve], int]:
     """Refined seams, and how many full-resolution points the refinement read in the seams' bands, each
-    counted once (the fine stage's crop). ``read``, when given, (H, W): those pixels are marked in it."""
+    counted once (the fine stage's crop). ``read``, when given, (H, W): those pixels are marked in it.
+    ``pool``: the seams are refined on its threads (each seam's work is its own; the marks in ``read`` only
+    ever set pixels), the result in the seams' order."""
     rp = params or RefineParams()
-    out: list[SeamCurve] = []
     if read is None:
         read = np.zeros(full.shape[:2], dtype=bool)
-    for s in seams:
-        q, px = _near_box(full, intr, s.points, rp.band_m, read=read)
-        A, B = surfaces.surfaces[s.surfaces[0]], surfaces.surfaces[s.surfaces[1]]
-        if s.joint == "butt" or (A.kind == B.kind == "plane" and abs(float(A.normal @ B.normal)) > np.cos(0.17)):
-            out.append(s)  # gaps and steps are placed at full resolution by their own steps
-        elif s.kind == "linear" and A.kind == "plane" and B.kind == "plane":
-            others = _others_residual(q, px, surfaces, s.surfaces, noise_full)
-            beyond = _face_points(full, intr, surfaces, s.points, rp.face_reach_m)
-            pieces = _refine_line(s, q, others, A, B, noise_full, rp, beyond=beyond,
-                                  weight_beyond=float(surfaces.factor**2))  # fmt: skip
-            if pieces:
-                segmented = _labelled_points(full, intr, surfaces, s.points, rp.end_slack_m + rp.band_m)
-                pieces = [_within_segmentation(r, segmented, noise_full, surfaces.factor, rp) for r in pieces]
-            out += pieces
-        elif s.kind == "curved" and "plane" in (A.kind, B.kind):
-            plane = A if A.kind == "plane" else B
-            far, lab = _face_points(full, intr, surfaces, s.points, rp.face_reach_m)
-            out.append(_refine_ring(s, q, A, B, noise_full, rp, beyond=far[lab == plane.label],
-                                    weight_beyond=float(surfaces.factor**2)))  # fmt: skip
-        else:
-            out.append(s)
+    marked = read
+
+    def one(s: SeamCurve) -> list[SeamCurve]:
+        return _refine_one(s, full, intr, surfaces, noise_full, rp, marked)
+
+    out: list[SeamCurve] = []
+    for refined in (pool.map(one, seams) if pool is not None else map(one, seams)):
+        out += refined
     return out, int(read.sum())
+
+
+def _refine_one(s: SeamCurve, full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet,
+                noise_full: NoiseModel, rp: RefineParams, read: NDArray[np.bool_]) -> list[SeamCurve]:  # fmt: skip
+    """One seam of :func:`refine_seams`: its refined pieces (none when the full resolution does not hold it)."""
+    q, px = _near_box(full, intr, s.points, rp.band_m, read=read)
+    A, B = surfaces.surfaces[s.surfaces[0]], surfaces.surfaces[s.surfaces[1]]
+    if s.joint == "butt" or (A.kind == B.kind == "plane" and abs(float(A.normal @ B.normal)) > np.cos(0.17)):
+        return [s]  # gaps and steps are placed at full resolution by their own steps
+    if s.kind == "linear" and A.kind == "plane" and B.kind == "plane":
+        others = _others_residual(q, px, surfaces, s.surfaces, noise_full)
+        beyond = _face_points(full, intr, surfaces, s.points, rp.face_reach_m)
+        pieces = _refine_line(s, q, others, A, B, noise_full, rp, beyond=beyond,
+                              weight_beyond=float(surfaces.factor**2))  # fmt: skip
+        if pieces:
+            segmented = _labelled_points(full, intr, surfaces, s.points, rp.end_slack_m + rp.band_m)
+            pieces = [_within_segmentation(r, segmented, noise_full, surfaces.factor, rp) for r in pieces]
+        return pieces
+    if s.kind == "curved" and "plane" in (A.kind, B.kind):
+        plane = A if A.kind == "plane" else B
+        far, lab = _face_points(full, intr, surfaces, s.points, rp.face_reach_m)
+        return [_refine_ring(s, q, A, B, noise_full, rp, beyond=far[lab == plane.label],
+                             weight_beyond=float(surfaces.factor**2))]  # fmt: skip
+    return [s]
 
 
 def _face_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet, curve: FloatArray,

@@ -126,6 +126,24 @@ def test_gussets_standing_across_a_fold_part_it_into_a_seam_between_each_two() -
         assert abs(length - true_length) < 3e-3
 
 
+def test_threads_or_none_the_seams_and_the_crop_are_the_same(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The full-resolution steps run the inner gaps and the seams' refinements on two threads, or in turn in a
+    process told to use one thread (a bench's workers): the same seams to the last digit, the same crop. On
+    the zoo's dev gusset 175 (four seams, one fold parted by gussets) and a butted pair of plates."""
+    from sim_fakes.zoo import draw_capture
+
+    for family, seed in (("gusset", 175), ("butt", 3)):
+        capture = draw_capture(family, seed).result.capture
+        monkeypatch.setenv("OMP_NUM_THREADS", "1")
+        alone = detect_surfaces(capture, DetectParams(method="surfaces"))
+        monkeypatch.delenv("OMP_NUM_THREADS")
+        threaded = detect_surfaces(capture, DetectParams(method="surfaces"))
+        assert len(alone.seams) == len(threaded.seams) > 0
+        for a, b in zip(alone.seams, threaded.seams, strict=True):
+            assert a.joint == b.joint and np.array_equal(a.points, b.points)
+        assert alone.point_counts == threaded.point_counts
+
+
 @pytest.mark.parametrize("seed", [46, 134])
 def test_a_lap_is_found_when_its_plates_grew_into_one_patch_or_its_edge_turns_past_75_degrees(seed: int) -> None:
     """Zoo dev lap 46: a 6 mm plate on a 6 mm plate seen towards its edge face; the face ramps the two tops into
