@@ -94,6 +94,34 @@ def surface_spacing(points: FloatArray, *, radius_m: float = 0.01, samples: int 
     return float(1.0 / np.sqrt(max(density, 1e-12)))
 
 
+STRAY_GAP_SPACINGS = 10.0  # pieces of a cloud parted by a gap over this many sample spacings are apart
+STRAY_SHARE = 0.001  # ... and a piece holding under this share of the points (at least 3) is stray
+
+
+def stray_points(points: FloatArray, spacing_m: float) -> NDArray[np.bool_]:
+    """(N,) whether each point lies in a stray piece of the cloud: a handful of points (under
+    :data:`STRAY_SHARE` of them) parted from the rest by a gap of about :data:`STRAY_GAP_SPACINGS` sample
+    spacings (``spacing_m``). Real scans hold such points, a LiDAR's returns off a far wall, a depth camera's flying
+    pixels, a reflection: a few of them metres away would stretch the cloud's view until its pixels are too
+    coarse for the part. Pieces are joined on a voxel grid that wide (each voxel to its 26 neighbours: points
+    one to two voxels apart are joined), so that a dense cloud costs its voxels, not its points' pairs. None
+    is stray when no piece is large enough to keep."""
+    from perception.fits import connected_components
+
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) == 0 or not spacing_m > 0.0:
+        return np.zeros(len(p), dtype=bool)
+    cell = STRAY_GAP_SPACINGS * spacing_m
+    keys = np.floor((p - p.min(axis=0)) / cell).astype(np.int64)
+    voxels, inv = np.unique(keys, axis=0, return_inverse=True)
+    piece = connected_components(voxels.astype(np.float64), 1.8)[inv.ravel()]  # sqrt(3) voxels: 26 neighbours
+    size = np.bincount(piece)
+    large = size >= max(3, STRAY_SHARE * len(p))
+    if not large.any():
+        return np.zeros(len(p), dtype=bool)
+    return np.asarray(~large[piece])
+
+
 def kdtree(points: FloatArray) -> cKDTree:
     """A KD-tree built with sliding midpoint splits: about twice as fast to build as scipy's default median
     splits, and as fast to query on scan data (measured on the ribs capture: 13 vs 30 ms for 146k points)."""

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from perception.butt import butt_from_surfaces
 from perception.capture import MAX_PLAUSIBLE_DEPTH_M, Capture, PointCloud
-from perception.cloud import surface_spacing
+from perception.cloud import stray_points, surface_spacing
 from perception.detect_params import DetectParams, StepLog
 from perception.errors import BadCapture, NoSeamFound, PerceptionError
 from perception.fits import fit_plane
@@ -332,13 +332,17 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
     p = params or DetectParams()
     if len(cloud.points) < 50:
         raise PerceptionError(f"{cloud.source}: only {len(cloud.points)} points")
+    spacing = surface_spacing(cloud.points)
+    stray = stray_points(cloud.points, spacing)
+    if stray.any():  # a few points far off the part (a far return, flying pixels): not the workpiece
+        cloud = _cloud_subset(cloud, ~stray)
     size = float(np.linalg.norm(np.ptp(cloud.points, axis=0)))
     if size > MAX_PLAUSIBLE_DEPTH_M:
         raise BadCapture(f"the cloud spans {size:.0f} m across; clouds are read in metres (one in millimetres "
                          "must be scaled by 0.001)", path=cloud.source)  # fmt: skip
-    spacing = surface_spacing(cloud.points)
     if p.method == "surfaces":  # its own viewpoint rule and range image: no voxel, no viewpoint guess here
-        return _detect_cloud_surfaces(cloud, p, spacing)
+        res = _detect_cloud_surfaces(cloud, p, spacing)
+        return replace(res, info=res.info | {"stray_points": int(stray.sum())})
     if auto_voxel and AUTO_VOXEL_FACTOR * spacing > p.voxel_m:
         p = replace(p, voxel_m=min(AUTO_VOXEL_FACTOR * spacing, MAX_AUTO_VOXEL_M))
     log = StepLog()
@@ -372,8 +376,15 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
             "spacing_m": round(spacing, 5),
             "viewpoint": viewpoint.round(4).tolist(),
             "counts": dict(log.counts),
+            "stray_points": int(stray.sum()),
         },
     )
+
+
+def _cloud_subset(cloud: PointCloud, keep: NDArray[np.bool_]) -> PointCloud:
+    """``cloud`` with only the points ``keep`` marks (their colours and normals with them)."""
+    return replace(cloud, points=cloud.points[keep], colors=None if cloud.colors is None else cloud.colors[keep],
+                   normals=None if cloud.normals is None else cloud.normals[keep])  # fmt: skip
 
 
 def _detect_cloud_surfaces(cloud: PointCloud, p: DetectParams, spacing: float) -> DetectionResult:

@@ -12,6 +12,7 @@ from perception.cloud import (
     normals_and_curvature,
     pass_through,
     smallest_eigenpairs,
+    stray_points,
     voxel_downsample,
 )
 
@@ -118,3 +119,20 @@ def test_closed_form_smallest_eigenpair_matches_eigh() -> None:
     assert np.abs(np.abs((v * evecs[:, :, 0]).sum(axis=1))[distinct] - 1.0).max() < 1e-9
     assert np.allclose(v[m + 0], [0, 1, 0]) or np.allclose(v[m + 0], [0, -1, 0])
 
+
+
+def test_a_few_points_far_off_the_part_are_stray_and_a_part_in_pieces_is_not() -> None:
+    """A plate sampled on a 2 mm grid (5 000 points) in two pieces 15 mm apart (over ten spacings: apart),
+    a 60-point bracket 0.3 m off, three single returns 2 m away and a pair of flying pixels 40 mm off: the
+    singles and the pair are stray (under 0.1% of the points each), the bracket and both pieces are not."""
+    x, y = np.meshgrid(np.arange(0.0, 0.1, 0.002), np.arange(0.0, 0.2, 0.002))
+    plate = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    plate[plate[:, 0] > 0.05, 0] += 0.015  # the second piece, 15 + 2 mm from the first
+    bracket = np.column_stack([np.full(60, 0.4), np.linspace(0.0, 0.118, 60), np.zeros(60)])
+    singles = np.array([[2.0, 0.0, 0.0], [-2.0, 0.1, 0.0], [0.0, 2.0, 0.5]])
+    pair = np.array([[0.05, 0.24, 0.0], [0.051, 0.24, 0.0]])
+    p = np.vstack([plate, bracket, singles, pair])
+    stray = stray_points(p, 0.002)
+    n = len(plate) + len(bracket)
+    assert not stray[:n].any() and stray[n:].all()
+    assert not stray_points(singles, 0.002).any()  # no piece large enough to keep: none is dropped

@@ -72,6 +72,24 @@ def test_a_cloud_in_millimetres_is_refused_with_the_reason() -> None:
         detect_cloud(PointCloud(cloud * 1000.0, source="tee_mm.ply"))
 
 
+def test_a_few_stray_returns_far_off_do_not_change_the_seam() -> None:
+    """The tee's cloud in a z-up frame with three single returns 2 m aside and one 10 m off (a far wall, a
+    reflection): they are dropped (the view they stretched had pixels too coarse for the part, and one
+    10 m off read as a unit error) and the fillet is the same as without them."""
+    X = make_X(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]), [0.4, -0.2, 1.0])
+    cloud, truth = _tee_cloud(X)
+    clean = detect_cloud(PointCloud(cloud, source="tee"))
+    c = np.median(cloud, axis=0)
+    strays = c + np.array([[2.0, 0.0, 0.0], [-2.0, 0.5, 0.0], [0.0, 2.0, 0.3], [0.0, 0.0, 10.0]])
+    res = detect_cloud(PointCloud(np.vstack([cloud, strays]), source="tee+strays"))
+    assert res.info["stray_points"] == 4 and clean.info["stray_points"] == 0
+    assert len(res.seams) == len(clean.seams) >= 1
+    for a, b in zip(res.seams, clean.seams, strict=True):
+        assert np.array_equal(a.points, b.points)
+    best = min(float(np.median(point_to_polyline_distance(np.asarray(s.points), truth))) for s in res.seams)
+    assert best < 3e-4
+
+
 def test_a_bad_cloud_or_viewpoint_is_refused() -> None:
     flat = _grid_cloud()
     with pytest.raises(PerceptionError, match="N >= 5"):

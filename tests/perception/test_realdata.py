@@ -108,15 +108,48 @@ def test_the_structured_light_frames_butted_plates_give_the_authors_seam() -> No
     assert float(np.median(point_to_polyline_distance(seam.points, authors))) < 0.002
 
 
-def test_a_bent_panels_facets_give_no_seam() -> None:
-    # pengrui-rio frame 6: a smoothly bent steel panel, cut by the plane fits into facets whose best planes
-    # turn 22 to 30 degrees from their neighbours; at the lines where they meet the panel turns 8 to 19
-    # degrees within 12 pixels, under a fold's 20. Four such "seams" (18 to 65 mm) were reported; none is
+def _turn_across_deg(points: np.ndarray, seam: np.ndarray) -> float | None:
+    """How far the cloud ``points`` turns across straight ``seam`` (degrees): the angle between planes
+    fitted to its points 2 to 18 mm either side of the seam's middle half-length stretch; None where a
+    side holds under 20 points."""
+    a, b = seam[0], seam[-1]
+    u = (b - a) / np.linalg.norm(b - a)
+    m, half = 0.5 * (a + b), 0.5 * float(np.linalg.norm(b - a))
+    near = points[np.linalg.norm(points - m, axis=1) < max(half, 0.02)]
+    n = np.linalg.eigh(np.cov((near - near.mean(axis=0)).T))[1][:, 0]
+    across = np.cross(n, u) / np.linalg.norm(np.cross(n, u))
+    d = points - m
+    t, s, h = d @ u, d @ across, d @ n
+    normals = []
+    for sign in (-1.0, 1.0):
+        k = (np.abs(t) <= half) & (np.abs(h) < 0.03) & (sign * s > 0.002) & (sign * s < 0.018)
+        if k.sum() < 20:
+            return None
+        q = points[k]
+        normals.append(np.linalg.eigh(np.cov((q - q.mean(axis=0)).T))[1][:, 0])
+    return float(np.degrees(np.arccos(min(1.0, abs(float(normals[0] @ normals[1]))))))
+
+
+def test_a_bent_panels_facets_give_no_seam_where_it_does_not_fold() -> None:
+    # pengrui-rio frame 6: a bent steel panel, cut by the plane fits into facets whose best planes turn 22 to 30
+    # degrees from their neighbours; at most of the lines where they meet the panel turns 8 to 19 degrees
+    # within 12 pixels, under a fold's 20. Four such "seams" (18 to 65 mm) were reported before 4cb1e4d; none
+    # is. Its stray points (16, 300 mm off) made its view coarser and it gave no seam at all; without them one
+    # line turns 21 degrees at 12 pixels and is reported (60 mm): the cloud itself turns 25 degrees across it.
+    # So: no straight seam where the cloud turns under a fold's 20 degrees, and at most two seams
     path = REALDATA / "pengrui-rio_welding-robot/Thu_Apr_2_10_14_30_6_frame.pcd"
     if not path.exists():
         pytest.skip("Thu_Apr_2_10_14_30_6_frame.pcd missing")
-    with pytest.raises(NoSeamFound, match="no seam found"):
-        detect_cloud(read_point_cloud(path), DetectParams())
+    cloud = read_point_cloud(path)
+    try:
+        seams = detect_cloud(cloud, DetectParams()).seams
+    except NoSeamFound:
+        return
+    assert len(seams) <= 2
+    for seam in seams:
+        if seam.kind == "linear":
+            turn = _turn_across_deg(cloud.points, np.asarray(seam.points))
+            assert turn is not None and turn > 20.0, (seam.length_m, turn)
 
 
 def test_the_y_tube_joint_gives_the_saddle_at_the_bottom_of_its_v() -> None:
