@@ -330,8 +330,11 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
     a sparse cloud (a LiDAR scan) gets a voxel of 1.5 times its sample spacing when that is coarser than
     ``params.voxel_m``, so that every voxel holds a point or two."""
     p = params or DetectParams()
+    finite = np.all(np.isfinite(np.asarray(cloud.points, dtype=np.float64)), axis=1)
+    if not finite.all():  # an organized cloud's invalid pixels, NaN or inf: no point there
+        cloud = _cloud_subset(cloud, finite)
     if len(cloud.points) < 50:
-        raise PerceptionError(f"{cloud.source}: only {len(cloud.points)} points")
+        raise PerceptionError(f"{cloud.source}: only {len(cloud.points)} finite points")
     spacing = surface_spacing(cloud.points)
     stray = stray_points(cloud.points, spacing)
     if stray.any():  # a few points far off the part (a far return, flying pixels): not the workpiece
@@ -340,6 +343,12 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
     if size > MAX_PLAUSIBLE_DEPTH_M:
         raise BadCapture(f"the cloud spans {size:.0f} m across; clouds are read in metres (one in millimetres "
                          "must be scaled by 0.001)", path=cloud.source)  # fmt: skip
+    centred = cloud.points - cloud.points.mean(axis=0)
+    var, axes = np.linalg.eigh(centred.T @ centred / len(centred))  # ascending
+    if np.sqrt(max(float(var[1]), 0.0)) < max(spacing, 1e-4):
+        length = float(np.ptp(centred @ axes[:, 2]))
+        raise NoSeamFound(f"the cloud's points lie along a line {length * 1000:.0f} mm long (or at one point): "
+                          "there is no surface to find a seam on")  # fmt: skip
     if p.method == "surfaces":  # its own viewpoint rule and range image: no voxel, no viewpoint guess here
         res = _detect_cloud_surfaces(cloud, p, spacing)
         return replace(res, info=res.info | {"stray_points": int(stray.sum())})

@@ -90,6 +90,30 @@ def test_a_few_stray_returns_far_off_do_not_change_the_seam() -> None:
     assert best < 3e-4
 
 
+def test_invalid_points_are_left_out_and_a_cloud_with_no_surface_says_so() -> None:
+    """A cloud given in memory with NaN and inf rows (an organized cloud's invalid pixels): they are left
+    out, and the tee's fillet is the same as without them. Points along one line, or all at one point, hold
+    no surface: no seam, and the reason says so (it read as a wrong intrinsics file before); no finite
+    point at all is refused."""
+    from perception.errors import NoSeamFound
+
+    X = make_X(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]), [0.4, -0.2, 1.0])
+    cloud, _ = _tee_cloud(X)
+    holes = cloud.copy()
+    holes[::37] = np.nan
+    holes[5::41] = np.inf
+    clean = detect_cloud(PointCloud(cloud[np.all(np.isfinite(holes), axis=1)], source="tee"))
+    res = detect_cloud(PointCloud(holes, source="tee with holes"))
+    assert [s.points.tolist() for s in res.seams] == [s.points.tolist() for s in clean.seams]
+    line = np.column_stack([np.linspace(0.0, 1.0, 500), np.zeros(500), np.full(500, 0.5)])
+    with pytest.raises(NoSeamFound, match="along a line 1000 mm long"):
+        detect_cloud(PointCloud(line, source="line"))
+    with pytest.raises(NoSeamFound, match="along a line 0 mm long"):
+        detect_cloud(PointCloud(np.tile([[0.1, 0.2, 0.5]], (500, 1)), source="one point"))
+    with pytest.raises(PerceptionError, match="only 0 finite points"):
+        detect_cloud(PointCloud(np.full((100, 3), np.nan), source="nothing"))
+
+
 def test_a_bad_cloud_or_viewpoint_is_refused() -> None:
     flat = _grid_cloud()
     with pytest.raises(PerceptionError, match="N >= 5"):
