@@ -325,6 +325,9 @@ def detect(
     )
 
 
+MAX_CLOUD_SPAN_M = MAX_PLAUSIBLE_DEPTH_M / 3.0  # its view stands twice its size off: within the depth limit
+
+
 def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_voxel: bool = True) -> DetectionResult:
     """Fine stage only, on an unorganized cloud (PLY/PCD): no segmentation, no crop. With ``auto_voxel``
     a sparse cloud (a LiDAR scan) gets a voxel of 1.5 times its sample spacing when that is coarser than
@@ -340,9 +343,10 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
     if stray.any():  # a few points far off the part (a far return, flying pixels): not the workpiece
         cloud = _cloud_subset(cloud, ~stray)
     size = float(np.linalg.norm(np.ptp(cloud.points, axis=0)))
-    if size > MAX_PLAUSIBLE_DEPTH_M:
-        raise BadCapture(f"the cloud spans {size:.0f} m across; clouds are read in metres (one in millimetres "
-                         "must be scaled by 0.001)", path=cloud.source)  # fmt: skip
+    if size > MAX_CLOUD_SPAN_M:
+        raise BadCapture(f"the cloud spans {size:.1f} m across, more than a part in a welding cell: crop it to the "
+                         "workpiece (a room or a cell scanned whole holds walls and floor), and give it in metres "
+                         "(one in millimetres must be scaled by 0.001)", path=cloud.source)  # fmt: skip
     centred = cloud.points - cloud.points.mean(axis=0)
     var, axes = np.linalg.eigh(centred.T @ centred / len(centred))  # ascending
     if np.sqrt(max(float(var[1]), 0.0)) < max(spacing, 1e-4):

@@ -72,6 +72,19 @@ def test_a_cloud_in_millimetres_is_refused_with_the_reason() -> None:
         detect_cloud(PointCloud(cloud * 1000.0, source="tee_mm.ply"))
 
 
+def test_a_room_scanned_whole_is_refused_with_the_reason() -> None:
+    """A cell's floor and a wall scanned whole, 7 m by 5 m at 25 mm samples (a LiDAR's room scan): over 6.7
+    m across, more than a cell's part, and the reason says to crop it (it was refused by the range image's
+    depth check, as a camera file's depth scale)."""
+    from perception.errors import BadCapture
+
+    a, b = np.meshgrid(np.arange(0.0, 7.0, 0.025), np.arange(0.0, 5.0, 0.025))
+    floor = np.column_stack([a.ravel(), b.ravel(), np.zeros(a.size)])
+    wall = np.column_stack([a.ravel(), np.full(a.size, 5.0), 0.6 * b.ravel()])
+    with pytest.raises(BadCapture, match=r"spans 9\.1 m across, more than a part in a welding cell: crop it"):
+        detect_cloud(PointCloud(np.vstack([floor, wall]), source="room"))
+
+
 def test_a_few_stray_returns_far_off_do_not_change_the_seam() -> None:
     """The tee's cloud in a z-up frame with three single returns 2 m aside and one 10 m off (a far wall, a
     reflection): they are dropped (the view they stretched had pixels too coarse for the part, and one
