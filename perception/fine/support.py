@@ -19,6 +19,8 @@ from perception.fine.types import FloatArray, NoiseModel, Surface, SurfaceSet
 ABOVE_SHARE = 0.97  # at least this share of all points lies on or above the support
 MIN_SHARE = 0.08  # and it holds at least this share of the labelled pixels
 FLATNESS_M = 0.001  # pieces of the support plane agree this well (a welding table is flat to a fraction of this)
+BEHIND_SIGMA = 4.0  # a point more than this many sigma (and the flatness) behind a plane lies behind it: the
+# support has nothing behind it (a lap's upper plate, 6 mm over the lower one, is not the table)
 CARRY_SHARE = 0.5  # at least this share of the points standing off a support lies over its outline
 FOOTPRINT_GROW_M = 0.006  # an outline (the convex hull of points dropped onto a plane) grown by this much
 CONTACT_M = 0.02  # or what stands off it touches it along this much (a part standing on it seen from one side)
@@ -38,13 +40,14 @@ def find_support(
     every = np.flatnonzero(valid)
     q = p.reshape(-1, 3)[every[:: max(1, len(every) // 40000)]]  # the sample, gathered alone
     tol = _off_tolerance(noise, q[:, 2])
+    behind = BEHIND_SIGMA * noise.sigma_m(q[:, 2]) + FLATNESS_M  # a point further behind is not on the plane
     labelled = int((surfaces.labels >= 0).sum())
     qualify: dict[int, frozenset[int]] = {}  # each qualifying plane's label: the labels of all its pieces
     for s in surfaces.surfaces:
         if s.kind != "plane" or s.n_points < MIN_SHARE * labelled:
             continue
         res = q @ s.normal + s.offset
-        if np.mean(res >= -tol) < ABOVE_SHARE:
+        if np.mean(res >= -behind) < ABOVE_SHARE:
             continue
         pieces = _pieces(surfaces, s, noise)
         mine = np.isin(surfaces.labels, sorted(pieces))
