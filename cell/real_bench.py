@@ -325,8 +325,6 @@ def perturbed_passes(realdata: Path, rel: str, ref: dict[str, Any], *, draws: in
     """Whether referenced cloud ``rel`` still passes with a share ``dropout`` of its points dropped at random,
     in each of ``draws`` seeded draws: a result that one sensor's sampling happens to give, and another
     sampling of the same part does not, is luck, not a detector that works on real data."""
-    from dataclasses import replace
-
     from perception.capture import read_point_cloud
     from perception.detect import DetectParams, detect_cloud
     from perception.errors import PerceptionError
@@ -335,8 +333,7 @@ def perturbed_passes(realdata: Path, rel: str, ref: dict[str, Any], *, draws: in
     out = []
     for seed in range(draws):
         keep = np.random.default_rng(seed).random(len(pc.points)) >= dropout
-        cloud = replace(pc, points=pc.points[keep], colors=None if pc.colors is None else pc.colors[keep],
-                        normals=None if pc.normals is None else pc.normals[keep])  # fmt: skip
+        cloud = pc.subset(keep)
         item = RealItem(rel, "cloud")
         paths: list[np.ndarray] = []
         try:

@@ -17,7 +17,7 @@ import math
 import os
 import tempfile
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -600,6 +600,11 @@ class PointCloud:
     frame: str = "camera"
     source: str = ""
     normals: FloatArray | None = None
+
+    def subset(self, keep: NDArray[np.bool_]) -> PointCloud:
+        """This cloud with only the points ``keep`` marks (their colours and normals with them)."""
+        return replace(self, points=self.points[keep], colors=None if self.colors is None else self.colors[keep],
+                       normals=None if self.normals is None else self.normals[keep])  # fmt: skip
 
 
 def read_point_cloud(path: str | os.PathLike[str]) -> PointCloud:

@@ -335,13 +335,13 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
     p = params or DetectParams()
     finite = np.all(np.isfinite(np.asarray(cloud.points, dtype=np.float64)), axis=1)
     if not finite.all():  # an organized cloud's invalid pixels, NaN or inf: no point there
-        cloud = _cloud_subset(cloud, finite)
+        cloud = cloud.subset(finite)
     if len(cloud.points) < 50:
         raise PerceptionError(f"{cloud.source}: only {len(cloud.points)} finite points")
     spacing = surface_spacing(cloud.points)
     stray = stray_points(cloud.points, spacing)
     if stray.any():  # a few points far off the part (a far return, flying pixels): not the workpiece
-        cloud = _cloud_subset(cloud, ~stray)
+        cloud = cloud.subset(~stray)
     size = float(np.linalg.norm(np.ptp(cloud.points, axis=0)))
     if size > MAX_CLOUD_SPAN_M:
         raise BadCapture(f"the cloud spans {size:.1f} m across, more than a part in a welding cell: crop it to the "
@@ -392,12 +392,6 @@ def detect_cloud(cloud: PointCloud, params: DetectParams | None = None, *, auto_
             "stray_points": int(stray.sum()),
         },
     )
-
-
-def _cloud_subset(cloud: PointCloud, keep: NDArray[np.bool_]) -> PointCloud:
-    """``cloud`` with only the points ``keep`` marks (their colours and normals with them)."""
-    return replace(cloud, points=cloud.points[keep], colors=None if cloud.colors is None else cloud.colors[keep],
-                   normals=None if cloud.normals is None else cloud.normals[keep])  # fmt: skip
 
 
 def _detect_cloud_surfaces(cloud: PointCloud, p: DetectParams, spacing: float) -> DetectionResult:
