@@ -54,12 +54,17 @@ def _angular_spacing(points: FloatArray, eye: FloatArray, *, neighbour: int, sam
     return float(np.median(d[:, neighbour] / np.maximum(np.linalg.norm(q - eye, axis=1), 1e-9)))
 
 
+def _pixel_keys(xn: FloatArray, yn: FloatArray, f: float) -> NDArray[np.int64]:
+    """One integer per pixel of a camera of focal length ``f``, for the points at normalized image
+    coordinates ``xn``, ``yn``."""
+    return np.floor(f * xn).astype(np.int64) * 1_000_003 + np.floor(f * yn).astype(np.int64)
+
+
 def _in_front(cam: FloatArray, xn: FloatArray, yn: FloatArray, f: float, depth_per_range: float) -> NDArray[np.bool_]:
     """Which of the (N, 3) camera-frame points ``cam`` (at normalized image coordinates ``xn``, ``yn``) lie
     within ``depth_per_range`` times their range of the nearest point in their pixel of a camera of focal
     length ``f`` (coarse, so that a face's samples fill its pixels): the points seen, not those behind."""
-    key = np.floor(f * xn).astype(np.int64) * 1_000_003 + np.floor(f * yn).astype(np.int64)
-    _, inv = np.unique(key, return_inverse=True)
+    _, inv = np.unique(_pixel_keys(xn, yn, f), return_inverse=True)
     nearest = np.full(int(inv.max()) + 1, np.inf)
     np.minimum.at(nearest, inv, cam[:, 2])
     return np.asarray(cam[:, 2] <= nearest[inv] * (1.0 + depth_per_range))
@@ -74,14 +79,19 @@ def _covering_focal(cam: FloatArray, xn: FloatArray, yn: FloatArray, f: float) -
     exp(-points per pixel): by more than :data:`HOLES_CLOSE` over two steps); points behind for other reasons
     (a face seen at a grazing angle, mixed points along an edge, a tube's far wall seen past its rim) stay,
     and are no reason to give up resolution."""
-    share = _seen_through_share(cam, xn, yn, f)
-    if share <= MAX_SEEN_THROUGH or share < HOLES_CLOSE * _seen_through_share(cam, xn, yn, f / 1.25**2):
+    shares: dict[int, float] = {}  # per step of 1.25 coarser, each measured once
+
+    def share(step: int) -> float:
+        if step not in shares:
+            shares[step] = _seen_through_share(cam, xn, yn, f / 1.25**step)
+        return shares[step]
+
+    if share(0) <= MAX_SEEN_THROUGH or share(0) < HOLES_CLOSE * share(2):
         return f
-    for _ in range(4):
-        f /= 1.25
-        if _seen_through_share(cam, xn, yn, f) <= MAX_SEEN_THROUGH:
-            break
-    return f
+    step = 1
+    while step < 4 and share(step) > MAX_SEEN_THROUGH:
+        step += 1
+    return f / 1.25**step
 
 
 def _seen_through_share(cam: FloatArray, xn: FloatArray, yn: FloatArray, f: float) -> float:
@@ -89,7 +99,7 @@ def _seen_through_share(cam: FloatArray, xn: FloatArray, yn: FloatArray, f: floa
     behind its pixel's nearest point in a camera of half the focal length, whose pixels the faces' samples
     fill (:func:`_in_front`)."""
     seen = _in_front(cam, xn, yn, 0.5 * f, SEEN_THROUGH_PIXELS / f)
-    key = np.floor(f * xn).astype(np.int64) * 1_000_003 + np.floor(f * yn).astype(np.int64)
+    key = _pixel_keys(xn, yn, f)
     order = np.lexsort((cam[:, 2], key))
     nearest = order[np.r_[True, key[order][1:] != key[order][:-1]]]
     return 1.0 - float(np.mean(seen[nearest]))
