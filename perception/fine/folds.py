@@ -32,6 +32,7 @@ class FoldParams:
 
 
 SHALLOW_TURN_RAD = np.radians(80.0)
+CAMERA_DOWN = np.array([0.0, 0.0, -1.0])  # "up" with no support: as though the camera looked straight down
 
 
 def rays_onto(x: FloatArray, s: Surface) -> FloatArray:
@@ -73,7 +74,7 @@ def joint_type(na: FloatArray, nb: FloatArray, up: FloatArray | None, standing_h
     if up is None:
         if float(na @ nb) > np.cos(SHALLOW_TURN_RAD):
             return "v_groove"
-        up = np.array([0.0, 0.0, -1.0])
+        up = CAMERA_DOWN
     ca, cb = abs(float(na @ up)), abs(float(nb @ up))
     if ca < 0.3 and cb < 0.3:  # both faces stand within about 17 degrees of vertical
         return "inside_corner"
@@ -163,7 +164,7 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
         if t1 - t0 < fp.min_length_m:
             continue
         pts = np.array([p0 + t0 * u, p0 + t1 * u])
-        height = _standing_height(p, lab, A, B, p0, u, np.array([0.0, 0.0, -1.0]) if up is None else up)
+        height = _standing_height(p, lab, A, B, p0, u, CAMERA_DOWN if up is None else up)
         joint = joint_type(A.normal, B.normal, up, height, fp.lap_height_m)
         support = int(ca[s0:s1].sum() + cb[s0:s1].sum())
         out.append(SeamCurve("linear", joint, pts, np.tile(A.normal, (2, 1)), np.tile(B.normal, (2, 1)),
