@@ -320,21 +320,20 @@ def draw(item: RealItem, cloud: Any, paths: list[np.ndarray], ref: dict[str, Any
     plt.close(fig)
 
 
-def perturbed_passes(realdata: Path, rel: str, ref: dict[str, Any], *, draws: int, dropout: float,
+def perturbed_passes(pc: Any, ref: dict[str, Any], *, draws: int, dropout: float,
                      method: Method = "refined") -> list[bool]:  # fmt: skip
-    """Whether referenced cloud ``rel`` still passes with a share ``dropout`` of its points dropped at random,
-    in each of ``draws`` seeded draws: a result that one sensor's sampling happens to give, and another
-    sampling of the same part does not, is luck, not a detector that works on real data."""
-    from perception.capture import read_point_cloud
+    """Whether referenced cloud ``pc`` (a :class:`perception.capture.PointCloud`) still passes with a share
+    ``dropout`` of its points dropped at random, in each of ``draws`` seeded draws: a result that one sensor's
+    sampling happens to give, and another sampling of the same part does not, is luck, not a detector that
+    works on real data."""
     from perception.detect import DetectParams, detect_cloud
     from perception.errors import PerceptionError
 
-    pc = read_point_cloud(realdata / rel)
     out = []
     for seed in range(draws):
         keep = np.random.default_rng(seed).random(len(pc.points)) >= dropout
         cloud = pc.subset(keep)
-        item = RealItem(rel, "cloud")
+        item = RealItem(pc.source, "cloud")
         paths: list[np.ndarray] = []
         try:
             res = detect_cloud(cloud, DetectParams(method=method))
@@ -355,8 +354,8 @@ def run_real(realdata: Path, out: Path | None = None, method: Method = "refined"
     items = []
     for rel, kind in discover(realdata):
         item, cloud, paths = run_item(realdata, rel, kind, refs, method)
-        if draws and kind == "cloud" and rel in refs:
-            item.perturbed = perturbed_passes(realdata, rel, refs[rel], draws=draws, dropout=dropout, method=method)
+        if draws and kind == "cloud" and rel in refs and cloud is not None:  # the cloud run_item read
+            item.perturbed = perturbed_passes(cloud, refs[rel], draws=draws, dropout=dropout, method=method)
         if out is not None and cloud is not None:
             out.mkdir(parents=True, exist_ok=True)
             img = out / (rel.replace("/", "__") + ".png")

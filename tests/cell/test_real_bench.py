@@ -45,6 +45,7 @@ def test_a_cloud_passes_again_with_points_dropped_and_a_wrong_reference_never(tm
     """The rendered tee's cloud (.npy) with its fillet as the reference: every draw with 2% of the points
     dropped at random covers it within 3 mm (its path points lie 5 mm apart); the same line 30 mm off never."""
     from cell.real_bench import perturbed_passes
+    from perception.capture import read_point_cloud
     from perception.transforms import make_X, transform_points
     from tests.perception.fine.scenes import rendered
 
@@ -54,10 +55,11 @@ def test_a_cloud_passes_again_with_points_dropped_and_a_wrong_reference_never(tm
     X = make_X(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]), [0.4, -0.2, 1.0])  # a z-up frame
     np.save(tmp_path / "tee.npy", transform_points(X, p[np.isfinite(p[:, 2])].astype(np.float64)))
     line = transform_points(X, gt.points_camera)
+    cloud = read_point_cloud(tmp_path / "tee.npy")
     good = {"file": "tee.json", "tolerance_m": 0.003, "seams": [{"points": line.tolist()}]}
-    assert perturbed_passes(tmp_path, "tee.npy", good, draws=3, dropout=0.02, method="surfaces") == [True] * 3
+    assert perturbed_passes(cloud, good, draws=3, dropout=0.02, method="surfaces") == [True] * 3
     off = {**good, "seams": [{"points": (line + np.array([0.0, 0.0, 0.03])).tolist()}]}
-    assert perturbed_passes(tmp_path, "tee.npy", off, draws=2, dropout=0.02, method="surfaces") == [False] * 2
+    assert perturbed_passes(cloud, off, draws=2, dropout=0.02, method="surfaces") == [False] * 2
 
 
 @pytest.mark.realdata
