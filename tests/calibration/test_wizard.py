@@ -52,6 +52,7 @@ from sim_fakes.fake_camera import CHARUCO_SCENE, BoardTarget, FakeCamera
 from sim_fakes.fake_fanuc import DEFAULT_START_XYZWPR_MM_DEG, FakeFanucController
 from sim_fakes.loopback import free_loopback_host
 from sim_fakes.render import X_TOOL_CAMERA
+from tests.config_text import replace_each_once
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLES = REPO / "examples"
@@ -101,9 +102,7 @@ def calib_config(
     if speed_m_s is not None:  # the speed of [hand_eye.calibration] (robot.speed_m_s comes earlier)
         head, table, tail = text.partition("[hand_eye.calibration]")
         text = head + table + re.sub(r"(?m)^speed_m_s = [0-9.]+", f"speed_m_s = {speed_m_s}", tail, count=1)
-    for old, new in swaps:
-        assert text.count(old) == 1, old
-        text = text.replace(old, new)
+    text = replace_each_once(text, swaps)
     if result_file is not None:
         text, n = re.subn(
             r"(\[hand_eye\]\n(?:#.*\n)*)X_tool_camera = \[\n(?:.*\n)*?\]\n", rf'\1path = "{result_file}"\n', text
@@ -585,5 +584,3 @@ def test_eye_to_hand_recovers_the_fixed_camera(cell: Any) -> None:
     err_mm, err_deg = mount_error(outcome.result.X_base_camera, cell.X_base_camera)
     assert err_mm < TOL_MM and err_deg < TOL_DEG, (err_mm, err_deg)
     assert outcome.assessment.verdict is Verdict.PASS and outcome.verification.rms_px < 0.5
-
-

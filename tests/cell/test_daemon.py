@@ -12,7 +12,6 @@ import os
 import queue
 import re
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -32,14 +31,9 @@ from cell.errors import ConfigError
 from cell.factory import Simulators, build_cell, start_simulators
 from cell.journal import Journal
 from tests.cell.runner_rig import EXAMPLES, REPO, cell_config, job_text
+from tests.config_text import free_port, replace_each_once
 
 TOKEN = "s3cret-token-for-tests"
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def request(
@@ -317,9 +311,7 @@ def config_from_example(tmp_path: Path, example: str, replacements: dict[str, st
         "speed_m_s = 0.1                # default tool speed": "speed_m_s = 0.5",
         "max_speed_m_s = 0.30": "max_speed_m_s = 0.6",
     }
-    for old, new in {**common, **replacements}.items():
-        assert text.count(old) == 1, old
-        text = text.replace(old, new)
+    text = replace_each_once(text, {**common, **replacements}.items())
     path = tmp_path / "cell.toml"
     path.write_text(text, encoding="utf-8")
     return path, load_config(path)

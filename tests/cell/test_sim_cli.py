@@ -17,26 +17,22 @@ from pathlib import Path
 
 import pytest
 
+from tests.config_text import free_port, replace_each_once
+
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "examples" / "sim-cell-fanuc.toml"
 
 
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def example_with(tmp_path: Path, name: str, *, robot_port: int, track_port: int) -> Path:
     """The FANUC example on free ports (a developer may be running the example itself) and a small image."""
-    text = EXAMPLE.read_text(encoding="utf-8")
-    for old, new in (
-        ("port = 16001", f"port = {robot_port}"),
-        ("port = 5020", f"port = {track_port}"),
-        ("resolution = [640, 360]", "resolution = [160, 90]"),
-    ):
-        assert text.count(old) == 1, old
-        text = text.replace(old, new)
+    text = replace_each_once(
+        EXAMPLE.read_text(encoding="utf-8"),
+        (
+            ("port = 16001", f"port = {robot_port}"),
+            ("port = 5020", f"port = {track_port}"),
+            ("resolution = [640, 360]", "resolution = [160, 90]"),
+        ),
+    )
     path = tmp_path / name
     path.write_text(text, encoding="utf-8")
     return path
