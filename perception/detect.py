@@ -411,26 +411,27 @@ def _detect_cloud_surfaces(cloud: PointCloud, p: DetectParams, spacing: float) -
     info = res.info | {"spacing_m": round(spacing, 5), "viewpoint": viewpoint.round(4).tolist(),
                        "view_px": [w, h]}  # fmt: skip
     if res.info.get("support"):
-        res = _on_the_table(res, cloud.points, spacing)
+        res = _on_the_table(res, cloud.points)
     return replace(res, frame="camera", info=info)
 
 
 PIECE_POINTS = 200_000  # a cloud's pieces are found on at most about this many of its points
+PIECE_NEIGHBOURS = 16  # ... each joined to its 16 nearest
 
 
-def _on_the_table(res: DetectionResult, points: FloatArray, spacing: float) -> DetectionResult:
+def _on_the_table(res: DetectionResult, points: FloatArray) -> DetectionResult:
     """The seams of a cloud with a table (a support was found) that lie on the table's piece of it: the table
-    and everything standing on it are one piece, joined at three sample spacings; a piece clear of it (a clamp's
-    handle over the part, a stray cluster) is not the workpiece. NoSeamFound when no seam is left."""
+    and everything standing on it are one piece, its points joined to their nearest (:data:`PIECE_NEIGHBOURS`,
+    :func:`perception.fits.neighbour_components`, so a LiDAR's scan lines far apart on a steep face
+    still join); a piece clear of it (a clamp's handle over the part, a stray cluster) is not the workpiece.
+    NoSeamFound when no seam is left."""
     from perception.cloud import kdtree
-    from perception.fits import connected_components
+    from perception.fits import neighbour_components
 
-    # a dense cloud is judged on every k-th point, the reach grown as their spacing is (memory and time stay
-    # those of PIECE_POINTS points)
-    k = max(1, int(np.ceil(len(points) / PIECE_POINTS)))
-    points = points[::k]
+    # a dense cloud is judged on every k-th point (memory and time stay those of PIECE_POINTS points)
+    points = points[:: max(1, int(np.ceil(len(points) / PIECE_POINTS)))]
     tree = kdtree(points)
-    piece = connected_components(points, 3.0 * spacing * np.sqrt(k), tree=tree)
+    piece = neighbour_components(points, PIECE_NEIGHBOURS, tree=tree)
     table = int(np.argmax(np.bincount(piece)))  # the largest piece: the table and all that stands on it
     kept = tuple(s for s in res.seams if np.bincount(piece[tree.query(np.asarray(s.points))[1]]).argmax() == table)
     if not kept:

@@ -170,6 +170,24 @@ def connected_components(points: FloatArray, radius: float, *, tree: Any = None)
     return lab.astype(np.int64)
 
 
+def neighbour_components(points: FloatArray, k: int, *, tree: Any = None) -> NDArray[np.int64]:
+    """(N,) component label of each (N, 3) point, each point joined to its ``k`` nearest. The reach follows
+    the sampling wherever it is: across a scan's lines as far apart as about k/2 in-line spacings (a LiDAR's
+    lines on a face seen at a slant), while a cluster of more than ``k`` points keeps its own."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components as graph_components
+
+    n = len(points)
+    k = min(k, n - 1)
+    if k < 1:
+        return np.zeros(n, np.int64)
+    _, idx = (kdtree(points) if tree is None else tree).query(points, k=k + 1)
+    rows, cols = np.repeat(np.arange(n), k), idx[:, 1:].ravel()
+    g = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n, n))
+    _, lab = graph_components(g, directed=False)
+    return lab.astype(np.int64)
+
+
 def order_along_curve(points: FloatArray, radius: float) -> FloatArray:
     """(N,) parameter along a thin curve-like point set: geodesic distance from one end."""
     from scipy.sparse import coo_matrix

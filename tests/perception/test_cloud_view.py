@@ -195,6 +195,6 @@ def test_a_piece_floating_clear_of_the_table_holds_no_seam(monkeypatch) -> None:
     # every seam kept: the bracket's fold is found too, on its line (x = z = 0.2 m)
     import perception.detect as detect_module
 
-    monkeypatch.setattr(detect_module, "_on_the_table", lambda res, points, spacing: res)
+    monkeypatch.setattr(detect_module, "_on_the_table", lambda res, points: res)
     (fold,) = [s for s in detect_cloud(both, DetectParams()).seams if s.joint != "fillet"]
     assert fold.length_m > 0.05 and np.abs(np.asarray(fold.points)[:, [0, 2]] - 0.2).max() < 1e-3

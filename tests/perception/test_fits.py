@@ -14,6 +14,7 @@ from perception.fits import (
     fit_plane_robust,
     line_coordinates,
     mean_rows,
+    neighbour_components,
     order_along_curve,
     orient_towards,
     outer_boundary,
@@ -93,6 +94,25 @@ def test_components_and_the_order_along_a_curve() -> None:
     if got[0] > got[-1]:  # either end may be the start
         got = got.max() - got
     np.testing.assert_allclose(got, expected, atol=1e-12)
+
+
+def test_scan_lines_far_apart_join_and_a_floating_cluster_does_not() -> None:
+    """A LiDAR-like scan: a table's lines 1 mm apart along them and 4 mm across; a wall standing on it seen at a
+    slant, its lines 6 mm apart (six in-line spacings) and the first 6 mm over the table; a 20 x 20 mm bracket
+    sampled on a 2 mm grid 20 mm over the wall's top. Joined to their 16 nearest, the table and wall are one
+    piece and the bracket another; three in-line spacings part the wall's lines."""
+    s = np.arange(0.0, 0.2, 0.001)
+    table = np.array([[x, y, 0.0] for y in np.arange(0.0, 0.2, 0.004) for x in s])
+    wall = np.array([[x, 0.1, z] for z in np.arange(0.006, 0.1, 0.006) for x in s])
+    g = np.arange(0.0, 0.02, 0.002)
+    bracket = np.array([[0.1 + a, 0.09 + b, 0.116] for a in g for b in g])
+    lab = neighbour_components(np.vstack([table, wall, bracket]), 16)
+    n_t, n_w = len(table), len(wall)
+    assert len(np.unique(lab[: n_t + n_w])) == 1
+    assert len(np.unique(lab[n_t + n_w :])) == 1 and lab[-1] != lab[0]
+    assert len(np.unique(connected_components(np.vstack([table, wall]), 0.003))) > 10
+    # too few points to have neighbours: one piece each
+    assert neighbour_components(np.zeros((1, 3)), 16).tolist() == [0]
 
 
 @pytest.mark.parametrize("order", ["C", "F", "strided"])
