@@ -15,6 +15,7 @@ hole in a face is dropped for the face's own. Seams found in that view are mappe
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,6 +31,9 @@ MAX_SIDE_PX = 1600
 MAX_SEEN_THROUGH = 0.06  # of the pixels showing a point behind the faces: below this, holes come one or two
 # together, and _drop_seen_through gives them the face's point (see _covering_focal)
 HOLES_CLOSE = 2.5  # holes between a face's samples: their share falls this much with pixels 1.25^2 as wide
+BRIDGE_GAP_PX = 8  # the widest run between a scan's lines bridged (pixels of 1.25 in-line spacings)
+BRIDGE_SLOPE = 3.0  # ... on a face seen up to 72 degrees off its normal
+BRIDGE_SHARE = 0.02  # ... when the view shows a scan's lines apart: bridges for this share of its points or more
 SEEN_THROUGH_PIXELS = 3.0  # a pixel's point this many pixel widths behind its neighbours on both sides lies
 # behind a surface whose samples left its pixel empty: no surface sampled at the pixel holds a pit that deep
 
@@ -131,6 +135,79 @@ def _fill_holes(organized: NDArray[np.float32]) -> NDArray[np.float32]:
     fill = ~valid & (count >= 3)
     out = organized.copy()
     out[fill] = pick[fill]
+    return out
+
+
+def _bridge_scan_lines(organized: NDArray[np.float32], f: float) -> NDArray[np.float32]:
+    """Empty runs between a scan's lines bridged: a LiDAR's lines on a face seen at a slant lie several
+    pixels apart however fine the in-line sampling that sets the pixel, and each line would be a surface of
+    its own, a line with no plane to it. An empty run of at most :data:`BRIDGE_GAP_PX` pixels along a row,
+    a column or a diagonal takes the nearer of the points at its two ends when those (a) lie on one surface
+    (depths within :data:`BRIDGE_SLOPE` pixel widths per pixel of the run) and (b) are each on a scan line:
+    a run of points thinner than the gap across it; and (c) the gap is an empty line between two lines: it
+    runs on across the way bridged for three times its width, and three quarters of the pixels within 2G
+    along it have a point, or one each way within G. A gap between two plates, or a hole in one, has a face
+    wider than itself on both sides; the holes between a cloud's random samples are short; a notch in a
+    ragged outline opens onto the empty outside; all stay. Only a view that shows a scan's lines apart (runs
+    bridged for :data:`BRIDGE_SHARE` of its points) is bridged."""
+    z = organized[..., 2]
+    H, W = z.shape
+    G = BRIDGE_GAP_PX
+    pad = 2 * G + 1
+    pv = np.pad(np.isfinite(z), pad, constant_values=False)
+
+    def at(a: NDArray[Any], dy: NDArray[np.int64] | int, dx: NDArray[np.int64] | int) -> NDArray[Any]:
+        """``a`` (padded) at each pixel moved by (dy, dx) pixels (at most the padding)."""
+        return a[pad + np.arange(H)[:, None] + dy, pad + np.arange(W)[None, :] + dx]
+
+    def run(mask: NDArray[np.bool_], dy: int, dx: int) -> NDArray[np.int64]:
+        """(padded) How many pixels of ``mask`` follow each pixel in a row (dy, dx) on, up to 2G."""
+        out, cont = np.zeros(mask.shape, np.int64), np.ones(mask.shape, bool)
+        for k in range(1, 2 * G + 1):
+            cont &= np.roll(mask, (-k * dy, -k * dx), axis=(0, 1))
+            out += cont
+        return out
+
+    def count(mask: NDArray[np.bool_], dy: int, dx: int) -> NDArray[np.int64]:
+        """How many pixels of ``mask`` lie within 2G pixels of each pixel on its line (dy, dx), itself included."""
+        m = np.pad(mask, pad, constant_values=False)
+        return at(sum((np.roll(m, (k * dy, k * dx), axis=(0, 1)).astype(np.int64) for k in range(-2 * G, 2 * G + 1)),
+                      np.zeros(m.shape, np.int64)), 0, 0)  # fmt: skip
+
+    steps = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
+    runs = {d: run(pv, *d) for d in steps}
+    empty = np.pad(~np.isfinite(z), pad, constant_values=False)
+    empty_runs = {d: run(empty, *d) for d in steps}
+    best_gap = np.full((H, W), G + 1)
+    pick = np.full((H, W), -1, dtype=np.int64)  # the flat index of the point an empty pixel takes
+    rows, cols = np.mgrid[0:H, 0:W]
+    for dy, dx in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        ends = []
+        for sign in (1, -1):
+            k_end = np.zeros((H, W), dtype=np.int64)  # steps to the first point that way (0: none within G)
+            for k in range(G, 0, -1):
+                k_end[at(pv, sign * k * dy, sign * k * dx)] = k
+            ey, ex = sign * k_end * dy, sign * k_end * dx
+            thick = 1 + at(runs[(sign * dy, sign * dx)], ey, ex)
+            ends.append((k_end, thick, at(np.pad(z, pad), ey, ex), rows + ey, cols + ex))
+        (k1, t1, z1, y1, x1), (k2, t2, z2, y2, x2) = ends
+        gap = k1 + k2 - 1
+        # the empty run is a line too: as long across the way bridged as three times its width
+        along = 1 + empty_runs[(dx, -dy)][pad:-pad, pad:-pad] + empty_runs[(-dx, dy)][pad:-pad, pad:-pad]
+        with np.errstate(invalid="ignore"):
+            one_surface = np.abs(z1 - z2) <= BRIDGE_SLOPE * (gap + 1) * np.fmin(z1, z2) / f
+        # ... between two lines all along it: a notch in a ragged outline opens onto the empty outside
+        flanked = count(((k1 > 0) & (k2 > 0) & (gap <= G)) | np.isfinite(z), dx, -dy) > 3 * G
+        lines = (t1 < gap) & (t2 < gap) & (along >= 3 * gap) & flanked
+        take = (k1 > 0) & (k2 > 0) & (gap < best_gap) & one_surface & lines & ~np.isfinite(z)
+        near1 = k1 <= k2
+        pick[take] = (np.where(near1, y1, y2) * W + np.where(near1, x1, x2))[take]
+        best_gap[take] = gap[take]
+    fill = pick >= 0
+    if fill.sum() < BRIDGE_SHARE * np.isfinite(z).sum():
+        return organized  # a few runs here and there, not a scan's lines apart
+    out = organized.copy()
+    out[fill] = organized.reshape(-1, 3)[pick[fill]]
     return out
 
 
@@ -309,6 +386,7 @@ def view_cloud(points: FloatArray, viewpoint: FloatArray) -> CloudView:
     organized[v[keep], u[keep]] = cam[keep]
     if not own:  # seen from its own sensor, every point was seen: none lies behind another's sampling gaps
         organized = _drop_seen_through(organized, SEEN_THROUGH_PIXELS / f)
+        organized = _bridge_scan_lines(organized, f)
     organized = _fill_holes(organized)
     X = np.eye(4)
     X[:3, :3], X[:3, 3] = R, eye

@@ -64,6 +64,32 @@ def test_a_layer_seen_through_the_gaps_of_a_randomly_sampled_plate_is_not_kept()
     assert max(float(near_edge[bins == b, 0].min()) for b in range(1, 10)) < 0.02 + 2 * 0.5 / view.intrinsics.fx
 
 
+def _pixel_of(view, p: np.ndarray) -> tuple[int, int]:
+    """The (row, column) of cloud-frame point ``p`` in ``view``."""
+    R, eye = view.X_cloud_camera[:3, :3], view.X_cloud_camera[:3, 3]
+    c = (p - eye) @ R
+    k = view.intrinsics
+    return int(np.floor(k.fy * c[1] / c[2] + k.cy + 0.5)), int(np.floor(k.fx * c[0] / c[2] + k.cx + 0.5))
+
+
+def test_a_scans_lines_far_apart_are_one_face_and_a_gap_between_plates_stays_open() -> None:
+    """Two plates 4 mm apart scanned in lines like a LiDAR: 1 mm between samples along a line, 6 mm between
+    lines, looked at from another side than the scan's. Between the lines the view is bridged: every pixel
+    of a plate holds a point of it (the lines come three to five pixels apart). Along the lines the gap
+    between the plates, wider than a sample but flanked by whole plates, stays open."""
+    s = np.arange(-0.1, 0.1, 0.001)
+    lines = np.arange(-0.06, 0.06, 0.006)
+    pts = np.array([[x, y, 0.0] for y in lines for x in s if abs(x) > 0.002])
+    pts[:, 2] += np.random.default_rng(0).normal(0.0, 1e-4, len(pts))
+    view = view_cloud(pts, np.array([0.0, -0.35, 0.45]))
+    z = view.organized[..., 2]
+    inner = [_pixel_of(view, np.array([x, y, 0.0])) for x in (-0.08, -0.03, 0.03, 0.08)
+             for y in np.arange(-0.05, 0.05, 0.0005)]  # fmt: skip
+    assert np.mean([np.isfinite(z[r, c]) for r, c in inner]) > 0.98
+    gap = [_pixel_of(view, np.array([0.0, y, 0.0])) for y in np.arange(-0.05, 0.05, 0.002)]
+    assert not any(np.isfinite(z[r, c]) for r, c in gap)
+
+
 def test_a_cloud_in_millimetres_is_refused_with_the_reason() -> None:
     from perception.errors import BadCapture
 
