@@ -29,6 +29,7 @@ from perception.fits import median
 
 SMOOTH_SLICES = 7  # the traced bottoms are averaged over this many neighbouring slices
 MIN_SLICES = 2  # a trace shorter than this many slices is not kept
+WIDER_SLICES = (2.0, 3.0)  # a slice that is no valley is looked at again this many times as wide across
 
 
 @dataclass(frozen=True)
@@ -171,7 +172,8 @@ def _follow(start: FloatArray, u: FloatArray, up: FloatArray, full: NDArray[np.f
     bevels turn by ``turn`` at the seam)."""
     out: list[FloatArray] = []
     last, along = start, u
-    misses, travelled, own, bias = 0, 0.0, 0, (0.0, 0.0)
+    misses, travelled = 0, 0.0
+    widths: list[tuple[TraceParams, int, tuple[float, float]]] = []  # slice parameters, points, bottom's offset
     q = np.zeros((0, 3))
     read_to = 0.0
     while travelled < tp.max_length_m and misses < tp.max_misses:
@@ -188,12 +190,23 @@ def _follow(start: FloatArray, u: FloatArray, up: FloatArray, full: NDArray[np.f
             if found is None:
                 return out
             ref_bottom, tp = found
-            own = _slice_points(q, ref, tp)
-            bias = float((ref.centre - ref_bottom) @ ref.across), float((ref.centre - ref_bottom) @ ref.up)
+            widths = [(tp, _slice_points(q, ref, tp), _bias(ref, ref_bottom))]
+            # wider slices where the seam's own last slice is a valley in them too (a wide groove's bevels
+            # reach beyond the seam's window): a slice that is no valley at the seam's width may be one at
+            # theirs (a ledge beside the bottom over a stretch), its bottom offset as theirs is there
+            for wider in WIDER_SLICES:
+                tpw = replace(tp, half_width_m=wider * tp.half_width_m)
+                wide_bottom = _slice_bottom(q, ref, noise, turn, tpw)
+                if wide_bottom is not None:
+                    widths.append((tpw, _slice_points(q, ref, tpw), _bias(ref, wide_bottom)))
         frame = _frame(last + along * (misses + 1) * tp.slice_m, along, up)
-        bottom = _slice_bottom(q, frame, noise, turn, tp) if _slice_points(q, frame, tp) >= 0.5 * own else None
-        if bottom is not None:
-            bottom = bottom + bias[0] * frame.across + bias[1] * frame.up
+        bottom = None
+        for tpw, own, bias in widths:
+            if _slice_points(q, frame, tpw) >= 0.5 * own:
+                bottom = _slice_bottom(q, frame, noise, turn, tpw)
+            if bottom is not None:
+                bottom = bottom + bias[0] * frame.across + bias[1] * frame.up
+                break
         travelled += tp.slice_m
         if bottom is None:
             misses += 1
@@ -209,6 +222,11 @@ def _follow(start: FloatArray, u: FloatArray, up: FloatArray, full: NDArray[np.f
         out.append(bottom)
         last = bottom
     return out if len(out) >= MIN_SLICES else []  # a slice or two past an end is as well its blurred edge
+
+
+def _bias(f: _Frame, bottom: FloatArray) -> tuple[float, float]:
+    """Where slice ``f``'s centre lies from the ``bottom`` found in it, across and up."""
+    return float((f.centre - bottom) @ f.across), float((f.centre - bottom) @ f.up)
 
 
 def _reference(q: FloatArray, ref: _Frame, noise: NoiseModel, turn: float,
