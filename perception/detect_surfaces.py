@@ -187,7 +187,7 @@ def _full_resolution_steps(
     from perception.fine.merge import merge_collinear
     from perception.fine.refine import refine_seams
     from perception.fine.steps import step_seams
-    from perception.fine.trace import trace_grooves
+    from perception.fine.trace import beside_groove, trace_grooves
     from perception.fine.visibility import clip_to_view
 
     noise_full = _full(noise, surf.factor)
@@ -226,10 +226,12 @@ def _full_resolution_steps(
         curves = trace_grooves(curves, organized, capture.intrinsics, noise_full, read=read)
     with log.step("view"):
         curves = clip_to_view(curves, surf, noise)
-        # a V-groove's opening between its plates' tops is not a butt gap beside it: the root is the seam. Only
-        # a groove that is seen counts (a butt gap's own walls can pass for a groove the camera cannot see into)
+        # a V-groove's opening between its plates' tops is not a butt gap beside it, nor a bevel's edge along it
+        # a fold or a step: the root is the seam. Only a groove that is seen counts (a butt gap's own walls can
+        # pass for a groove the camera cannot see into)
         grooves = [c for c in curves if c.joint == "v_groove"]
         curves = [c for c in curves if c.joint != "butt" or not over_groove(c, grooves)]
+        curves = [c for c in curves if c.joint in ("v_groove", "butt") or not beside_groove(c, grooves)]
     with log.step("corners"):
         curves = join_corners(curves, noise_full)
     used = int(read.sum())

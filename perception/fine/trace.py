@@ -98,6 +98,19 @@ def _join_overlapping(seams: list[SeamCurve], noise: NoiseModel, tp: TraceParams
     return [s for s in seams if s.joint != "v_groove"] + kept
 
 
+def beside_groove(seam: SeamCurve, grooves: list[SeamCurve], *, share: float = 0.8) -> bool:
+    """Whether ``seam`` lies along a longer one of ``grooves``, within a groove slice's reach across
+    (:class:`TraceParams`' half width) over ``share`` of its length: a fold or step there is the groove's
+    own (a bevel's edge, a ledge beside its bottom), and the groove is welded once, along its bottom."""
+    reach = TraceParams().half_width_m
+    probe = resample_polyline(seam.points, 0.001)
+    length = _length(seam.points)
+    for g in grooves:
+        if _length(g.points) > length and float(np.mean(point_to_polyline_distance(probe, g.points) <= reach)) >= share:
+            return True
+    return False
+
+
 def _curved(s: SeamCurve, pts: FloatArray) -> SeamCurve:
     """Seam ``s`` as a curved seam through ``pts``, its bevel normals carried along."""
     pts = pts[:: max(1, len(pts) // 200)] if len(pts) > 400 else pts

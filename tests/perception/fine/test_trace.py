@@ -7,7 +7,7 @@ import pytest
 
 from perception.capture import CameraIntrinsics
 from perception.evaluate import point_to_polyline_distance
-from perception.fine.trace import TraceParams, trace_grooves
+from perception.fine.trace import TraceParams, beside_groove, trace_grooves
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve
 
 from .scenes import rendered, work
@@ -193,3 +193,19 @@ def test_a_groove_with_a_ledge_beside_its_bottom_is_traced_on_in_a_wider_slice()
     assert s.points[:, 1].min() > -0.001 and s.points[:, 1].max() < 0.007
     assert np.abs(s.points[:, 2] - 0.512).max() < 1e-3
     assert 0.093 < s.points[:, 0].max() < 0.1005 and s.points[:, 0].min() < -0.093
+
+
+def test_a_fold_or_step_along_a_groove_within_its_slice_is_the_grooves_own() -> None:
+    """A 100 mm groove; a 25 mm step 5.7 mm beside its bottom (CoboWeld's bar: a bevel's edge taken for a
+    lap) is the groove's own, as is one 7 mm off; one 15 mm off (beyond the 8 mm a slice reaches across), one
+    crossing it, and a seam longer than the groove beside it are not."""
+    def seam(a: list[float], b: list[float], joint: str = "lap") -> SeamCurve:
+        return SeamCurve("linear", joint, np.array([a, b]), np.tile([0.0, 0.0, -1.0], (2, 1)),
+                         np.tile([0.0, 1.0, 0.0], (2, 1)), (2, 3), 50, 1e-4)  # fmt: skip
+
+    groove = seam([0.0, 0.0, 0.5], [0.1, 0.0, 0.5], "v_groove")
+    assert beside_groove(seam([0.03, 0.0057, 0.5], [0.055, 0.0057, 0.5]), [groove])
+    assert beside_groove(seam([0.03, -0.007, 0.5], [0.055, -0.007, 0.5]), [groove])
+    assert not beside_groove(seam([0.03, 0.015, 0.5], [0.055, 0.015, 0.5]), [groove])
+    assert not beside_groove(seam([0.05, -0.02, 0.5], [0.05, 0.02, 0.5], "fillet"), [groove])
+    assert not beside_groove(seam([-0.01, 0.005, 0.5], [0.12, 0.005, 0.5]), [groove])
