@@ -150,6 +150,8 @@ def _bridge_scan_lines(organized: NDArray[np.float32], f: float) -> NDArray[np.f
     wider than itself on both sides; the holes between a cloud's random samples are short; a notch in a
     ragged outline opens onto the empty outside; all stay. Only a view that shows a scan's lines apart (runs
     bridged for :data:`BRIDGE_SHARE` of its points) is bridged."""
+    import cv2
+
     z = organized[..., 2]
     H, W = z.shape
     G = BRIDGE_GAP_PX
@@ -170,9 +172,11 @@ def _bridge_scan_lines(organized: NDArray[np.float32], f: float) -> NDArray[np.f
 
     def count(mask: NDArray[np.bool_], dy: int, dx: int) -> NDArray[np.int64]:
         """How many pixels of ``mask`` lie within 2G pixels of each pixel on its line (dy, dx), itself included."""
-        m = np.pad(mask, pad, constant_values=False)
-        return at(sum((np.roll(m, (k * dy, k * dx), axis=(0, 1)).astype(np.int64) for k in range(-2 * G, 2 * G + 1)),
-                      np.zeros(m.shape, np.int64)), 0, 0)  # fmt: skip
+        line = np.zeros((4 * G + 1, 4 * G + 1), np.float32)
+        k = np.arange(-2 * G, 2 * G + 1)
+        line[2 * G + k * dy, 2 * G + k * dx] = 1.0
+        summed = cv2.filter2D(mask.astype(np.float32), -1, line, borderType=cv2.BORDER_CONSTANT)
+        return np.rint(summed).astype(np.int64)
 
     steps = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
     runs = {d: run(pv, *d) for d in steps}
