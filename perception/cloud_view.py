@@ -156,7 +156,9 @@ def _bridge_scan_lines(organized: NDArray[np.float32], f: float) -> NDArray[np.f
     H, W = z.shape
     G = BRIDGE_GAP_PX
     pad = 2 * G + 1
-    pv = np.pad(np.isfinite(z), pad, constant_values=False)
+    valid = np.isfinite(z)
+    pv = np.pad(valid, pad, constant_values=False)
+    pz = np.pad(z, pad)  # the depths of the pixels a run ends at (a padding pixel is never one)
 
     def at(a: NDArray[Any], dy: NDArray[np.int64] | int, dx: NDArray[np.int64] | int) -> NDArray[Any]:
         """``a`` (padded) at each pixel moved by (dy, dx) pixels (at most the padding)."""
@@ -180,7 +182,7 @@ def _bridge_scan_lines(organized: NDArray[np.float32], f: float) -> NDArray[np.f
 
     steps = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
     runs = {d: run(pv, *d) for d in steps}
-    empty = np.pad(~np.isfinite(z), pad, constant_values=False)
+    empty = np.pad(~valid, pad, constant_values=False)
     empty_runs = {d: run(empty, *d) for d in steps}
     best_gap = np.full((H, W), G + 1)
     pick = np.full((H, W), -1, dtype=np.int64)  # the flat index of the point an empty pixel takes
@@ -193,7 +195,7 @@ def _bridge_scan_lines(organized: NDArray[np.float32], f: float) -> NDArray[np.f
                 k_end[at(pv, sign * k * dy, sign * k * dx)] = k
             ey, ex = sign * k_end * dy, sign * k_end * dx
             thick = 1 + at(runs[(sign * dy, sign * dx)], ey, ex)
-            ends.append((k_end, thick, at(np.pad(z, pad), ey, ex), rows + ey, cols + ex))
+            ends.append((k_end, thick, at(pz, ey, ex), rows + ey, cols + ex))
         (k1, t1, z1, y1, x1), (k2, t2, z2, y2, x2) = ends
         gap = k1 + k2 - 1
         # the empty run is a line too: as long across the way bridged as three times its width
@@ -201,14 +203,14 @@ def _bridge_scan_lines(organized: NDArray[np.float32], f: float) -> NDArray[np.f
         with np.errstate(invalid="ignore"):
             one_surface = np.abs(z1 - z2) <= BRIDGE_SLOPE * (gap + 1) * np.fmin(z1, z2) / f
         # ... between two lines all along it: a notch in a ragged outline opens onto the empty outside
-        flanked = count(((k1 > 0) & (k2 > 0) & (gap <= G)) | np.isfinite(z), dx, -dy) > 3 * G
+        flanked = count(((k1 > 0) & (k2 > 0) & (gap <= G)) | valid, dx, -dy) > 3 * G
         lines = (t1 < gap) & (t2 < gap) & (along >= 3 * gap) & flanked
-        take = (k1 > 0) & (k2 > 0) & (gap < best_gap) & one_surface & lines & ~np.isfinite(z)
+        take = (k1 > 0) & (k2 > 0) & (gap < best_gap) & one_surface & lines & ~valid
         near1 = k1 <= k2
         pick[take] = (np.where(near1, y1, y2) * W + np.where(near1, x1, x2))[take]
         best_gap[take] = gap[take]
     fill = pick >= 0
-    if fill.sum() < BRIDGE_SHARE * np.isfinite(z).sum():
+    if fill.sum() < BRIDGE_SHARE * valid.sum():
         return organized  # a few runs here and there, not a scan's lines apart
     out = organized.copy()
     out[fill] = organized.reshape(-1, 3)[pick[fill]]
