@@ -160,30 +160,28 @@ def plane_intersection(
 def connected_components(points: FloatArray, radius: float, *, tree: Any = None) -> NDArray[np.int64]:
     """(N,) component label of each (N, 3) point, points closer than ``radius`` joined. ``tree``: the points'
     KD-tree (:func:`perception.cloud.kdtree`) when the caller has it already."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components as graph_components
-
     pairs = (kdtree(points) if tree is None else tree).query_pairs(radius, output_type="ndarray")
-    n = len(points)
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, lab = graph_components(g, directed=False)
-    return lab.astype(np.int64)
+    return _edge_components(len(points), pairs[:, 0], pairs[:, 1])
 
 
 def neighbour_components(points: FloatArray, k: int, *, tree: Any = None) -> NDArray[np.int64]:
     """(N,) component label of each (N, 3) point, each point joined to its ``k`` nearest. The reach follows
     the sampling wherever it is: across a scan's lines as far apart as about k/2 in-line spacings (a LiDAR's
     lines on a face seen at a slant), while a cluster of more than ``k`` points keeps its own."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components as graph_components
-
     n = len(points)
     k = min(k, n - 1)
     if k < 1:
         return np.zeros(n, np.int64)
     _, idx = (kdtree(points) if tree is None else tree).query(points, k=k + 1)
-    rows, cols = np.repeat(np.arange(n), k), idx[:, 1:].ravel()
-    g = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n, n))
+    return _edge_components(n, np.repeat(np.arange(n), k), idx[:, 1:].ravel())
+
+
+def _edge_components(n: int, a: NDArray[np.intp], b: NDArray[np.intp]) -> NDArray[np.int64]:
+    """(n,) component label of each of ``n`` nodes of the undirected graph with the edges ``a[i]``-``b[i]``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components as graph_components
+
+    g = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n, n))
     _, lab = graph_components(g, directed=False)
     return lab.astype(np.int64)
 
