@@ -35,7 +35,8 @@ class RealItem:
     item: str  # path relative to the realdata folder
     kind: str  # cloud, rgbd frame, photos, mesh
     points: int = 0
-    seams: list[dict[str, Any]] = field(default_factory=list)  # kind, length_m, median distance to a reference
+    # kind, joint, length_m, and the median distance to a reference when there is one
+    seams: list[dict[str, Any]] = field(default_factory=list)
     outcome: str = ""  # seams, no_seam, not_run, error
     reason: str = ""
     time_s: float = 0.0
@@ -198,7 +199,7 @@ def run_item(realdata: Path, rel: str, kind: str, refs: dict[str, dict[str, Any]
         item.time_s = time.perf_counter() - t0
         item.outcome = "seams"
         for s in res.seams:
-            item.seams.append({"kind": s.kind, "length_m": round(s.length_m, 4)})
+            item.seams.append({"kind": s.kind, "joint": s.joint, "length_m": round(s.length_m, 4)})
             paths.append(np.asarray(s.points))
     except NoSeamFound as err:
         item.time_s = time.perf_counter() - t0
@@ -310,7 +311,9 @@ def draw(item: RealItem, cloud: Any, paths: list[np.ndarray], ref: dict[str, Any
         for k, p in enumerate(paths):
             r = project(np.asarray(p, dtype=np.float64))
             ax.plot(r[:, 0], r[:, 1], "-", color="red", lw=1.5)
-            ax.text(r[len(r) // 2, 0], r[len(r) // 2, 1], str(k), color="red")
+            # the joint named too: a "v_groove" on a flat table is plainly false to anyone who looks
+            joint = item.seams[k].get("joint", "") if k < len(item.seams) else ""
+            ax.text(r[len(r) // 2, 0], r[len(r) // 2, 1], f"{k} {joint}".strip(), color="red")
         ax.set_aspect("equal")
         ax.set_title(title)
     verdict = "" if item.passed is None else (" PASS" if item.passed else " FAIL")
@@ -337,7 +340,7 @@ def perturbed_passes(pc: Any, ref: dict[str, Any], *, draws: int, dropout: float
         paths: list[np.ndarray] = []
         try:
             res = detect_cloud(cloud, DetectParams(method=method))
-            item.seams = [{"kind": s.kind, "length_m": s.length_m} for s in res.seams]
+            item.seams = [{"kind": s.kind, "joint": s.joint, "length_m": s.length_m} for s in res.seams]
             paths = [np.asarray(s.points) for s in res.seams]
         except PerceptionError:
             pass  # no seam (or refused): every reference seam uncovered

@@ -71,7 +71,9 @@ def run(args: argparse.Namespace) -> int:
     for c in [*columns, "notes"]:
         t.add_column(c, overflow="fold")
     for i in items:
-        seams = ", ".join(f"{s['kind'][0]}{s['length_m'] * 1000:.0f}" for s in i.seams) or "0"
+        # l250 fillet: a linear seam 250 mm long, and its joint
+        seams = ", ".join(f"{s['kind'][0]}{s['length_m'] * 1000:.0f} {s.get('joint', '')}".strip()
+                          for s in i.seams) or "0"  # fmt: skip
         notes = i.reason if i.outcome != "seams" else i.note
         row = [i.item, i.kind, str(i.points), seams, f"{i.time_s:.2f}",
                f"tol {i.tolerance_m * 1000:.0f} mm" if i.tolerance_m else "-",

@@ -19,8 +19,8 @@ from cell.real_bench import RealItem
 
 REPO = Path(__file__).resolve().parents[2]
 
-SCAN = RealItem("a/scan.ply", "cloud", points=1200, seams=[{"kind": "linear", "length_m": 0.25}], outcome="seams",
-                time_s=0.5, reference="a.json", tolerance_m=0.005, coverage=[0.9], false_seams=0)  # fmt: skip
+SCAN = RealItem("a/scan.ply", "cloud", points=1200, seams=[{"kind": "linear", "joint": "fillet", "length_m": 0.25}],
+                outcome="seams", time_s=0.5, reference="a.json", tolerance_m=0.005, coverage=[0.9], false_seams=0)  # fmt: skip
 FRAME = RealItem("b/frame", "rgbd frame", points=300, outcome="no_seam", reason="no two surfaces meet",
                  reference="b.json", tolerance_m=0.01, coverage=[0.0])  # fmt: skip
 ITEMS = [SCAN, FRAME, RealItem("c/photos", "photos", outcome="not_run", reason="photos without depth")]
@@ -79,7 +79,7 @@ def test_the_table_lists_every_item_and_ends_with_the_count(
     rows = [[c.strip() for c in line.split("│")[1:-1]] for line in lines if line.startswith("│")]
     by_item = {r[0]: r for r in rows if r[0]}
     # item, kind, points, seams, time s, reference, coverage, false, pass, notes
-    assert by_item["a/scan.ply"][1:9] == ["cloud", "1200", "l250", "0.50", "tol 5 mm", "90%", "0", "yes"]
+    assert by_item["a/scan.ply"][1:9] == ["cloud", "1200", "l250 fillet", "0.50", "tol 5 mm", "90%", "0", "yes"]
     assert by_item["b/frame"][1:] == ["rgbd frame", "300", "0", "0.00", "tol 10 mm", "0%", "0", "no",
                                       "no two surfaces meet"]  # fmt: skip
     assert by_item["c/photos"][5:] == ["-", "-", "-", "-", "photos without depth"]
