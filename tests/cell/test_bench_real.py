@@ -20,7 +20,8 @@ from cell.real_bench import RealItem
 REPO = Path(__file__).resolve().parents[2]
 
 SCAN = RealItem("a/scan.ply", "cloud", points=1200, seams=[{"kind": "linear", "joint": "fillet", "length_m": 0.25}],
-                outcome="seams", time_s=0.5, reference="a.json", tolerance_m=0.005, coverage=[0.9], false_seams=0)  # fmt: skip
+                outcome="seams", time_s=0.5, reference="a.json", tolerance_m=0.005, coverage=[0.9],
+                false_seams=0)  # fmt: skip
 FRAME = RealItem("b/frame", "rgbd frame", points=300, outcome="no_seam", reason="no two surfaces meet",
                  reference="b.json", tolerance_m=0.01, coverage=[0.0])  # fmt: skip
 ITEMS = [SCAN, FRAME, RealItem("c/photos", "photos", outcome="not_run", reason="photos without depth")]
