@@ -205,3 +205,28 @@ def test_the_lidar_tee_on_its_table_gives_its_fillet() -> None:
     assert float(np.median(point_to_polyline_distance(np.asarray(seam.points), ref))) < 0.001
     along = resample_polyline(ref, 0.001)
     assert float(np.mean(point_to_polyline_distance(along, np.asarray(seam.points)) <= tolerance)) >= 0.6
+
+
+def test_a_lidar_tables_curled_border_is_no_groove() -> None:
+    # thillRobot's tube on a plate on a table (1plate_1tube partA): the LiDAR draws the table in layers of scan
+    # lines 3 mm apart and bends it by as much across the scene, and its border curls up 10 mm over its last
+    # 20 mm. With the table taken to be flat to 1 mm it was no support, and the curl made a 59 mm "V-groove"
+    # 326 mm from the reference fillet (the bench's false seam: a median over twice the 10 mm tolerance from
+    # it). The table flat as its sensor shows it (support.structured_error) is the support, and no seam lies
+    # far from the reference (the fillet itself is not found yet: issue 12)
+    import json
+
+    from perception.evaluate import point_to_polyline_distance
+
+    rel = "thillRobot_seam_detection/1plate_1tube_partA_fig1_cropped.pcd"
+    ref_file = REALDATA / "references" / "thillRobot_seam_detection_1plate_1tube_partA_fig1_cropped.json"
+    if not ref_file.is_file() or not (REALDATA / rel).is_file():
+        pytest.skip("the scan or its reference is missing")
+    reference = json.loads(ref_file.read_text(encoding="utf-8"))
+    ref, tolerance = np.asarray(reference["seams"][0]["points"]), float(reference["tolerance_m"])
+    try:
+        seams = detect_cloud(read_point_cloud(REALDATA / rel), DetectParams()).seams
+    except NoSeamFound:
+        return
+    for seam in seams:
+        assert float(np.median(point_to_polyline_distance(np.asarray(seam.points), ref))) <= 2 * tolerance
