@@ -8,7 +8,9 @@ when given, say which surfaces are the workpiece (:mod:`perception.fine.workpiec
 seams.
 
     noise -> surfaces -> support -> adjacency -> workpiece -> folds, gaps, grooves     (work resolution)
+          -> wide folds (a swept LiDAR's captures only: perception.fine.wide_folds)
           -> refine -> inner gaps, steps -> merge -> groove trace -> view clip -> corners  (full resolution)
+          -> the wide folds in place of the seams along them
 
 Each step is timed and counted in the result's ``timing_s`` (``step_<name>``) and ``info["counts"]``.
 """
@@ -19,6 +21,7 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -59,8 +62,12 @@ def detect_surfaces(
     log.counts["work"] = int(np.isfinite(work[..., 2]).sum())
     curves, surf, noise, support, skip, pairs = _work_resolution_steps(work, factor, organized, capture, log,
                                                                        aim=p.unprompted == "aim")  # fmt: skip
+    with log.step("wide_folds"):
+        wide = _wide_folds(work, surf, noise, support, skip)
+    log.counts["wide_folds"] = len(wide)
     t_coarse = time.perf_counter() - t0
     curves, used = _full_resolution_steps(curves, surf, noise, skip, pairs, work, organized, capture, log)
+    curves = _with_wide_folds(curves, wide, noise)
     t_fine = time.perf_counter() - t0 - t_coarse
     if not curves:
         raise NoSeamFound(
@@ -123,13 +130,14 @@ def _work_resolution_steps(
     from perception.fine.gaps import gap_seams
     from perception.fine.grooves import groove_seams
     from perception.fine.noise import estimate_noise, local_planes
-    from perception.fine.support import find_support
+    from perception.fine.support import find_support, structured_error
     from perception.fine.surfaces import segment_surfaces
     from perception.fine.workpiece import prompted_labels, workpiece_labels
 
     with log.step("noise"):
         planes = local_planes(work, window_px=7)
         noise = estimate_noise(work, planes)
+        structure = structured_error(work, noise)
     with log.step("surfaces"):
         surf = segment_surfaces(work, planes, noise, factor=factor)
     log.counts["surfaces"] = len(surf.surfaces)
@@ -137,7 +145,7 @@ def _work_resolution_steps(
         # of the planes that could be the table, one the operator did not click (the faces of an inside corner
         # seen from in front each have every point on their camera side, and the largest is often a wall)
         prompted = prompted_labels(capture.prompts_px, surf)
-        support = find_support(work, surf, noise, prompted=prompted)
+        support = find_support(work, surf, noise, prompted=prompted, structure_1m=structure)
     with log.step("adjacency"):
         pairs = adjacent_pairs(surf, noise)
     log.counts["pairs"] = len(pairs)
@@ -157,6 +165,7 @@ def _work_resolution_steps(
         # a groove whose bevels were segmented is already a fold between them
         curves += [g for g in grooves if not _duplicates(g, curves, within_m=0.004)]
     log.counts["candidates"] = len(curves)
+    noise = replace(noise, structure_1m_m=structure)
     return curves, surf, noise, support, skip, pairs
 
 
@@ -241,7 +250,32 @@ def _full_resolution_steps(
 
 def _full(noise: NoiseModel, factor: int) -> NoiseModel:
     """The noise model at full resolution: the same depth noise, ``factor`` times finer sample spacing."""
-    return NoiseModel(noise.sigma_1m_m, noise.floor_m, noise.pixel_angle_rad / factor)
+    return NoiseModel(noise.sigma_1m_m, noise.floor_m, noise.pixel_angle_rad / factor, noise.structure_1m_m)
+
+
+def _wide_folds(work: NDArray[np.float64], surf: SurfaceSet, noise: NoiseModel, support: frozenset[int],
+                skip: frozenset[int]) -> list[SeamCurve]:  # fmt: skip
+    """The folds between wide planes (:mod:`perception.fine.wide_folds`; none unless the capture's structured
+    error is at least its noise), less those whose faces are mostly surfaces that are never a seam's (``skip``:
+    off the workpiece)."""
+    from perception.fine.wide_folds import wide_fold_seams
+
+    found = wide_fold_seams(work, surf, noise, support=support, structure_1m=noise.structure_1m_m)
+    return [c for c in found if not set(c.surfaces) & (skip - support)]
+
+
+def _with_wide_folds(curves: list[SeamCurve], wide: list[SeamCurve], noise: NoiseModel) -> list[SeamCurve]:
+    """``curves`` with the wide planes' folds, each in place of the seams that run along it within the corner's
+    rounding (the view's fragments place a rounded corner's fold inside the rounding, 10-20 mm off it)."""
+    if not wide:
+        return curves
+    from perception.fine.wide_folds import WideFoldParams, runs_along
+
+    wp = WideFoldParams()
+    z = float(median(np.concatenate([c.points[:, 2] for c in wide])))
+    reach = wp.reach_spacings * float(noise.spacing_m(z))
+    kept = [c for c in curves if not any(runs_along(c.points, w.points, reach, wp.parallel_rad) for w in wide)]
+    return kept + wide
 
 
 def _duplicates(seam: SeamCurve, others: list[SeamCurve], *, within_m: float = 0.002) -> bool:

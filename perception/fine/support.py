@@ -40,15 +40,17 @@ def find_support(
     noise: NoiseModel,
     *,
     prompted: frozenset[int] = frozenset(),
+    structure_1m: float | None = None,
 ) -> frozenset[int]:
     """The labels of the support plane in an (h, w, 3) work cloud: the best qualifying plane and every
-    other piece of the same plane (the table seen on both sides of the part); empty when none qualifies."""
+    other piece of the same plane (the table seen on both sides of the part); empty when none qualifies.
+    ``structure_1m``: the capture's :func:`structured_error`, when the caller has measured it."""
     p = np.asarray(points, dtype=np.float64)
     valid = np.isfinite(p[..., 2])
     every = np.flatnonzero(valid)
     q = p.reshape(-1, 3)[every[:: max(1, len(every) // 40000)]]  # the sample, gathered alone
     tol = _off_tolerance(noise, q[:, 2])
-    structure_1m = structured_error(p, noise)
+    structure_1m = structured_error(p, noise) if structure_1m is None else structure_1m
     flatness = FLATNESS_M + BEHIND_SIGMA * structure_1m * q[:, 2] ** 2  # the table as flat as the sensor shows it
     behind = BEHIND_SIGMA * noise.sigma_m(q[:, 2]) + flatness  # a point further behind is not on the plane
     on_surface = surfaces.labels.reshape(-1)[every[:: max(1, len(every) // 40000)]] >= 0

@@ -18,18 +18,23 @@ class NoiseModel:
     """The capture's depth noise and sample spacing, measured from the capture itself.
 
     sigma(z) = max(sigma_1m_m * z^2, floor_m): one-sigma depth noise at range z (normal incidence);
-    pixel_angle_rad: the angle between neighbouring rays at the work resolution (spacing = z * angle).
+    pixel_angle_rad: the angle between neighbouring rays at the work resolution (spacing = z * angle);
+    structure_1m_m: the error at 1 m that planes a few times wider see and the noise model's do not
+    (:func:`perception.fine.support.structured_error`; 0 when not measured).
     """
 
     sigma_1m_m: float
     floor_m: float
     pixel_angle_rad: float
+    structure_1m_m: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("sigma_1m_m", "floor_m", "pixel_angle_rad"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"NoiseModel.{name} must be a positive number, got {v}")
+        if not (np.isfinite(self.structure_1m_m) and self.structure_1m_m >= 0):
+            raise ValueError(f"NoiseModel.structure_1m_m must be a number >= 0, got {self.structure_1m_m}")
 
     def sigma_m(self, z: FloatArray | float) -> FloatArray:
         return np.maximum(self.sigma_1m_m * np.square(z), self.floor_m)

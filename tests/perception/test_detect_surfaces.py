@@ -20,7 +20,7 @@ from sim_fakes.scenes import Scene
 from tests.perception.fine.scenes import TABLE, rendered, tee
 
 STEPS = ("backproject", "work_image", "noise", "surfaces", "support", "adjacency", "workpiece", "folds", "gaps",
-         "grooves", "refine", "inner_gaps", "steps", "merge", "trace", "view", "corners")  # fmt: skip
+         "grooves", "wide_folds", "refine", "inner_gaps", "steps", "merge", "trace", "view", "corners")  # fmt: skip
 
 
 def test_a_tees_visible_fillet_is_found_on_its_truth_with_every_step_timed_and_counted() -> None:

@@ -207,16 +207,17 @@ def test_the_lidar_tee_on_its_table_gives_its_fillet() -> None:
     assert float(np.mean(point_to_polyline_distance(along, np.asarray(seam.points)) <= tolerance)) >= 0.6
 
 
-def test_a_lidar_tables_curled_border_is_no_groove() -> None:
+def test_a_lidar_tube_on_a_plate_gives_its_fillet_and_no_groove_on_the_table() -> None:
     # thillRobot's tube on a plate on a table (1plate_1tube partA): the LiDAR draws the table in layers of scan
     # lines 3 mm apart and bends it by as much across the scene, and its border curls up 10 mm over its last
     # 20 mm. With the table taken to be flat to 1 mm it was no support, and the curl made a 59 mm "V-groove"
-    # 326 mm from the reference fillet (the bench's false seam: a median over twice the 10 mm tolerance from
-    # it). The table flat as its sensor shows it (support.structured_error) is the support, and no seam lies
-    # far from the reference (the fillet itself is not found yet: issue 12)
+    # 326 mm from the reference fillet. The table flat as its sensor shows it (support.structured_error) is
+    # the support; the tube's front face and the base plate, found again as wide planes (fine.wide_folds:
+    # the structure is 2.1 times the noise), give the fillet: 105 mm, a median 4.0 mm from the reference
+    # (corner rounded over 20-40 mm, tolerance 10 mm), covering all of it, and nothing else
     import json
 
-    from perception.evaluate import point_to_polyline_distance
+    from perception.evaluate import point_to_polyline_distance, resample_polyline
 
     rel = "thillRobot_seam_detection/1plate_1tube_partA_fig1_cropped.pcd"
     ref_file = REALDATA / "references" / "thillRobot_seam_detection_1plate_1tube_partA_fig1_cropped.json"
@@ -224,9 +225,8 @@ def test_a_lidar_tables_curled_border_is_no_groove() -> None:
         pytest.skip("the scan or its reference is missing")
     reference = json.loads(ref_file.read_text(encoding="utf-8"))
     ref, tolerance = np.asarray(reference["seams"][0]["points"]), float(reference["tolerance_m"])
-    try:
-        seams = detect_cloud(read_point_cloud(REALDATA / rel), DetectParams()).seams
-    except NoSeamFound:
-        return
-    for seam in seams:
-        assert float(np.median(point_to_polyline_distance(np.asarray(seam.points), ref))) <= 2 * tolerance
+    (seam,) = detect_cloud(read_point_cloud(REALDATA / rel), DetectParams()).seams
+    assert seam.joint == "fillet"
+    assert float(np.median(point_to_polyline_distance(np.asarray(seam.points), ref))) < 0.5 * tolerance
+    along = resample_polyline(ref, 0.001)
+    assert float(np.mean(point_to_polyline_distance(along, np.asarray(seam.points)) <= tolerance)) >= 0.9

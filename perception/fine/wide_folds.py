@@ -1,0 +1,196 @@
+"""Folds between wide planes, for a sensor whose error grows with the scale it is seen at.
+
+A swept LiDAR draws each face in layers of scan lines a few millimetres apart and rounds its corners over
+20-40 mm; seen through its range image the faces break into fragments a few dozen pixels wide, and their folds
+land inside the rounding, 10-20 mm off the corner, or nowhere. The measured structured error
+(:func:`perception.fine.support.structured_error`) says when a capture is such a one: when it is twice the
+noise model's own sigma or more (2.1-2.8 on thillRobot's plate scans; 0.1-0.3 on stereo, 0.9 on the table
+tee's scan, whose corners the view's surfaces place) and parts stand on a table, the faces are found again as
+wide planes, fitted within 4 sigma_wide (the noise seen
+at the scale of a face, sqrt(sigma^2 + structure^2)) to the points off the support, one after another (RANSAC,
+each plane its largest connected piece). Two of them that turn by a fold's angle and meet concavely (each
+one's points near their line lie on the camera side of the other) give a seam along their intersection where
+both have points within the corner's rounding of it, each reaching well beyond the rounding (a strip fitted
+across the rounding itself is no face), the strongest of parallel candidates within the rounding of each other
+kept (a face standing on a plate lying on the table meets both planes: the plate's, nearer, is the fold).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from perception.fine.folds import FoldParams, joint_type
+from perception.fine.types import FloatArray, NoiseModel, SeamCurve, SurfaceSet
+from perception.fits import connected_components
+
+
+@dataclass(frozen=True)
+class WideFoldParams:
+    min_structure: float = 2.0  # the step runs when the structured error is this many times the noise or more
+    tol_sigma: float = 4.0  # a point within this many sigma_wide of a wide plane lies on it
+    reach_spacings: float = 10.0  # the corner's rounding: support within this many sample spacings of the line
+    min_points: int = 60  # a wide plane holds at least this many of the sampled points
+    max_planes: int = 25
+    trials: int = 300
+    sample: int = 12_000  # the points off the support are sampled down to this many
+    score: int = 2_000  # RANSAC trials are scored on this many of them
+    min_length_m: float = 0.020
+    parallel_rad: float = float(np.radians(10.0))  # candidates this parallel and within the rounding are one
+
+
+@dataclass(frozen=True)
+class WidePlane:
+    """A plane fitted to points within ``tol_m`` of it: unit ``normal`` towards the camera, ``offset``
+    (normal . p + offset = 0), its points (indices into the sample) and their centroid."""
+
+    normal: FloatArray
+    offset: float
+    members: NDArray[np.int64]
+    centroid: FloatArray
+
+
+def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, *, support: frozenset[int],
+                    structure_1m: float, params: WideFoldParams | None = None) -> list[SeamCurve]:  # fmt: skip
+    """The folds between the wide planes of the (h, w, 3) work cloud ``points`` off the ``support``; none
+    unless parts stand on a support (a table) and the capture's structured error (at 1 m) is at least
+    :attr:`WideFoldParams.min_structure` times its noise model's sigma. A cloud of a part alone (a groove
+    cropped out of a stereo camera's view, a bent panel, a tube) has no table to find the parts on, and
+    its curved faces' own bending counts as structure at the wider planes' scale: wide planes would cut
+    them into facets."""
+    wp = params or WideFoldParams()
+    if not support or structure_1m < wp.min_structure * noise.sigma_1m_m:
+        return []
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    lab = surfaces.labels.reshape(-1)
+    idx = np.flatnonzero(np.isfinite(p[:, 2]) & ~np.isin(lab, sorted(support)))
+    if len(idx) < 3 * wp.min_points:
+        return []
+    rng = np.random.default_rng(0)
+    pick = idx[np.sort(rng.permutation(len(idx))[: wp.sample])]
+    q = p[pick]
+    z = float(np.median(q[:, 2]))
+    sigma_wide = float(np.hypot(noise.sigma_m(z), structure_1m * z * z))
+    # the sample's own spacing: the work image's, thinned by the sampling
+    spacing = float(noise.spacing_m(z)) * float(np.sqrt(len(idx) / len(pick)))
+    planes = wide_planes(q, wp.tol_sigma * sigma_wide, 4.0 * spacing, wp, rng)
+    up = surfaces.surfaces[min(support)].normal if support else None
+    reach = wp.reach_spacings * float(noise.spacing_m(z))
+    cands = []
+    for i, a in enumerate(planes):
+        for b in planes[i + 1 :]:
+            found = _fold(q, a, b, reach, wp)
+            if found is not None:
+                cands.append((len(a.members) + len(b.members), a, b, *found))
+    out: list[SeamCurve] = []
+    kept: list[FloatArray] = []
+    for _, a, b, ends, height in sorted(cands, key=lambda c: -c[0]):
+        if any(runs_along(ends, k, reach, wp.parallel_rad) for k in kept):
+            continue
+        kept.append(ends)
+        joint = joint_type(a.normal, b.normal, up, height, FoldParams().lap_height_m)
+        labels = (_majority(lab[pick[a.members]]), _majority(lab[pick[b.members]]))
+        out.append(SeamCurve("linear", joint, ends, np.tile(a.normal, (2, 1)), np.tile(b.normal, (2, 1)), labels,
+                             len(a.members) + len(b.members), sigma_wide))  # fmt: skip
+    return out
+
+
+def wide_planes(q: FloatArray, tol_m: float, join_m: float, wp: WideFoldParams,
+                rng: np.random.Generator) -> list[WidePlane]:  # fmt: skip
+    """Planes found one after another in the (N, 3) points ``q``: the trial plane through three of them that
+    holds the most of a sample within ``tol_m``, its points' largest piece joined at ``join_m``, refitted
+    by least squares; until no plane holds :attr:`WideFoldParams.min_points`."""
+    out: list[WidePlane] = []
+    left = np.arange(len(q))
+    while len(left) >= wp.min_points and len(out) < wp.max_planes:
+        x = q[left]
+        tri = rng.integers(0, len(x), (wp.trials, 3))
+        n = np.cross(x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]])
+        norm = np.linalg.norm(n, axis=1)
+        ok = norm > 1e-12
+        if not ok.any():
+            break
+        n, o = n[ok] / norm[ok, None], x[tri[ok, 0]]
+        d = -np.einsum("tk,tk->t", n, o)
+        score = x[rng.choice(len(x), min(wp.score, len(x)), replace=False)]
+        best = int(np.argmax((np.abs(score @ n.T + d) <= tol_m).sum(axis=0)))
+        on = left[np.abs(x @ n[best] + d[best]) <= tol_m]
+        piece = on[_largest(connected_components(q[on], join_m))] if len(on) >= wp.min_points else on
+        if len(piece) < wp.min_points:
+            left = np.setdiff1d(left, on)  # no face here: these points are spent
+            continue
+        c = q[piece].mean(axis=0)
+        normal = np.linalg.eigh(np.cov((q[piece] - c).T))[1][:, 0]
+        normal = -normal if float(normal @ c) > 0 else normal
+        out.append(WidePlane(normal, -float(normal @ c), piece, c))
+        left = np.setdiff1d(left, piece)
+    return out
+
+
+def _largest(labels: NDArray[np.int64]) -> NDArray[np.bool_]:
+    return np.asarray(labels == np.argmax(np.bincount(labels)))
+
+
+def _fold(q: FloatArray, a: WidePlane, b: WidePlane, reach: float,
+          wp: WideFoldParams) -> tuple[FloatArray, float] | None:  # fmt: skip
+    """Planes ``a`` and ``b``'s seam: its two ends and how far the narrower face reaches from it; None unless
+    they turn by a fold's angle, meet concavely, both have points within ``reach`` of their line along
+    ``min_length_m`` and both reach twice as far beyond it."""
+    if abs(float(a.normal @ b.normal)) > np.cos(FoldParams().min_turn_rad):
+        return None
+    u = np.cross(a.normal, b.normal)
+    u /= np.linalg.norm(u)
+    mid = float(u @ (a.centroid + b.centroid)) / 2.0
+    p0 = np.linalg.solve(np.array([a.normal, b.normal, u]), [-a.offset, -b.offset, mid])
+    (ta, xa, da), (tb, xb, db) = (_line_coords(q[s.members], p0, u) for s in (a, b))
+    na, nb = da <= reach, db <= reach
+    if na.sum() < 10 or nb.sum() < 10:
+        return None
+    # concave: each face's points near the line lie on the camera side of the other's plane
+    if float(np.median(xb[nb] @ a.normal + a.offset)) <= 0 or float(np.median(xa[na] @ b.normal + b.offset)) <= 0:
+        return None
+    lo = max(float(np.percentile(ta[na], 2)), float(np.percentile(tb[nb], 2)))
+    hi = min(float(np.percentile(ta[na], 98)), float(np.percentile(tb[nb], 98)))
+    if hi - lo < wp.min_length_m:
+        return None
+    span_a, span_b = (ta >= lo) & (ta <= hi), (tb >= lo) & (tb <= hi)
+    if span_a.sum() < 5 or span_b.sum() < 5:
+        return None
+    # each a face: reaching well beyond the rounding (a strip fitted across the rounding itself does not)
+    extent = min(float(np.percentile(da[span_a], 90)), float(np.percentile(db[span_b], 90)))
+    if extent < 2.0 * reach:
+        return None
+    return np.array([p0 + lo * u, p0 + hi * u]), extent
+
+
+def _line_coords(x: FloatArray, p0: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Each point's coordinate along the line (p0, u), the points, and their distance from it."""
+    d = x - p0
+    t = d @ u
+    return t, x, np.linalg.norm(d - np.outer(t, u), axis=1)
+
+
+def runs_along(curve: FloatArray, other: FloatArray, reach: float, parallel_rad: float) -> bool:
+    """Whether the (N, 3) polyline ``curve`` runs along the segment from ``other``'s first point to its last:
+    its chord within ``parallel_rad`` of that direction, its middle point within ``reach`` of that line and
+    between its ends."""
+    u = curve[-1] - curve[0]
+    v = other[-1] - other[0]
+    lu, lv = float(np.linalg.norm(u)), float(np.linalg.norm(v))
+    if lu < 1e-9 or lv < 1e-9 or abs(float(u @ v)) < np.cos(parallel_rad) * lu * lv:
+        return False
+    v = v / lv
+    d = curve[len(curve) // 2] - other[0]
+    t = float(d @ v)
+    return 0.0 <= t <= lv and float(np.linalg.norm(d - t * v)) < reach
+
+
+def _majority(labels: NDArray[np.int32]) -> int:
+    """The segmented surface most of a wide plane's points belong to (-1: none)."""
+    own = labels[labels >= 0]
+    return int(np.bincount(own).argmax()) if own.size else -1
+
+
+__all__ = ["WideFoldParams", "WidePlane", "runs_along", "wide_fold_seams", "wide_planes"]
