@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from perception.fine.folds import FoldParams, joint_type
+from perception.fine.folds import FoldParams, joint_type, line_coords
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, SurfaceSet
 from perception.fits import connected_components
 
@@ -76,7 +76,7 @@ def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: N
     # the sample's own spacing: the work image's, thinned by the sampling
     spacing = float(noise.spacing_m(z)) * float(np.sqrt(len(idx) / len(pick)))
     planes = wide_planes(q, wp.tol_sigma * sigma_wide, 4.0 * spacing, wp, rng)
-    up = surfaces.surfaces[min(support)].normal if support else None
+    up = surfaces.surfaces[min(support)].normal
     reach = wp.reach_spacings * float(noise.spacing_m(z))
     cands = []
     for i, a in enumerate(planes):
@@ -144,7 +144,8 @@ def _fold(q: FloatArray, a: WidePlane, b: WidePlane, reach: float,
     u /= np.linalg.norm(u)
     mid = float(u @ (a.centroid + b.centroid)) / 2.0
     p0 = np.linalg.solve(np.array([a.normal, b.normal, u]), [-a.offset, -b.offset, mid])
-    (ta, xa, da), (tb, xb, db) = (_line_coords(q[s.members], p0, u) for s in (a, b))
+    xa, xb = q[a.members], q[b.members]
+    (ta, da), (tb, db) = line_coords(xa, p0, u), line_coords(xb, p0, u)
     na, nb = da <= reach, db <= reach
     if na.sum() < 10 or nb.sum() < 10:
         return None
@@ -163,13 +164,6 @@ def _fold(q: FloatArray, a: WidePlane, b: WidePlane, reach: float,
     if extent < 2.0 * reach:
         return None
     return np.array([p0 + lo * u, p0 + hi * u]), extent
-
-
-def _line_coords(x: FloatArray, p0: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Each point's coordinate along the line (p0, u), the points, and their distance from it."""
-    d = x - p0
-    t = d @ u
-    return t, x, np.linalg.norm(d - np.outer(t, u), axis=1)
 
 
 def runs_along(curve: FloatArray, other: FloatArray, reach: float, parallel_rad: float) -> bool:
