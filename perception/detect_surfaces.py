@@ -21,7 +21,6 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -130,14 +129,13 @@ def _work_resolution_steps(
     from perception.fine.gaps import gap_seams
     from perception.fine.grooves import groove_seams
     from perception.fine.noise import estimate_noise, local_planes
-    from perception.fine.support import find_support, structured_error
+    from perception.fine.support import find_support
     from perception.fine.surfaces import segment_surfaces
     from perception.fine.workpiece import prompted_labels, workpiece_labels
 
     with log.step("noise"):
         planes = local_planes(work, window_px=7)
         noise = estimate_noise(work, planes)
-        structure = structured_error(work, noise)
     with log.step("surfaces"):
         surf = segment_surfaces(work, planes, noise, factor=factor)
     log.counts["surfaces"] = len(surf.surfaces)
@@ -145,7 +143,7 @@ def _work_resolution_steps(
         # of the planes that could be the table, one the operator did not click (the faces of an inside corner
         # seen from in front each have every point on their camera side, and the largest is often a wall)
         prompted = prompted_labels(capture.prompts_px, surf)
-        support = find_support(work, surf, noise, prompted=prompted, structure_1m=structure)
+        support = find_support(work, surf, noise, prompted=prompted)
     with log.step("adjacency"):
         pairs = adjacent_pairs(surf, noise)
     log.counts["pairs"] = len(pairs)
@@ -165,7 +163,6 @@ def _work_resolution_steps(
         # a groove whose bevels were segmented is already a fold between them
         curves += [g for g in grooves if not _duplicates(g, curves, within_m=0.004)]
     log.counts["candidates"] = len(curves)
-    noise = replace(noise, structure_1m_m=structure)
     return curves, surf, noise, support, skip, pairs
 
 
@@ -260,7 +257,7 @@ def _wide_folds(work: NDArray[np.float64], surf: SurfaceSet, noise: NoiseModel, 
     off the workpiece)."""
     from perception.fine.wide_folds import wide_fold_seams
 
-    found = wide_fold_seams(work, surf, noise, support=support, structure_1m=noise.structure_1m_m)
+    found = wide_fold_seams(work, surf, noise, support=support)
     return [c for c in found if not set(c.surfaces) & (skip - support)]
 
 

@@ -97,7 +97,21 @@ def _mean_normal(m: tuple[FloatArray, FloatArray, FloatArray], st: int) -> tuple
 
 
 def estimate_noise(points: NDArray[np.floating], planes: LocalPlanes) -> NoiseModel:
-    """sigma(z) = s * z^2 fitted to the local plane residuals of full windows, and the pixel angle."""
+    """sigma(z) = s * z^2 fitted to the local plane residuals of full windows, the pixel angle, and the
+    structured error (:func:`structured_error`)."""
+    sigma_1m = _sigma_1m(points, planes)
+    z = np.asarray(points[..., 2], dtype=np.float64)
+    x = np.asarray(points[..., 0], dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.abs(np.diff(x / z, axis=1))
+    d = d[np.isfinite(d)]
+    angle = float(median(d)) if d.size else 1e-3
+    return NoiseModel(sigma_1m_m=sigma_1m, floor_m=FLOOR_M, pixel_angle_rad=max(angle, 1e-6),
+                      structure_1m_m=structured_error(points, sigma_1m))  # fmt: skip
+
+
+def _sigma_1m(points: NDArray[np.floating], planes: LocalPlanes) -> float:
+    """s of sigma(z) = s * z^2 (at least :data:`FLOOR_M`), from the local plane residuals of full windows."""
     z = np.asarray(points[..., 2], dtype=np.float64)
     full = np.isfinite(planes.variance) & (planes.count >= planes.window_px**2 - 0.5) & np.isfinite(z)
     if full.sum() < 100:
@@ -107,10 +121,22 @@ def estimate_noise(points: NDArray[np.floating], planes: LocalPlanes) -> NoiseMo
     k = planes.window_px**2
     # the variance of k points about their own best plane underestimates sigma^2 by (k - 3) / k
     sig = np.sqrt(planes.variance[full] * k / max(k - 3, 1))
-    s = float(np.percentile(sig / z[full] ** 2, NOISE_PERCENTILE))
-    x = np.asarray(points[..., 0], dtype=np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = np.abs(np.diff(x / z, axis=1))
-    d = d[np.isfinite(d)]
-    angle = float(median(d)) if d.size else 1e-3
-    return NoiseModel(sigma_1m_m=max(s, FLOOR_M), floor_m=FLOOR_M, pixel_angle_rad=max(angle, 1e-6))
+    return max(float(np.percentile(sig / z[full] ** 2, NOISE_PERCENTILE)), FLOOR_M)
+
+
+WIDE_STEP = 3  # the structured error is measured on planes this many times as wide as the noise model's
+
+
+def structured_error(points: NDArray[np.floating], sigma_1m_m: float) -> float:
+    """The depth error at 1 m that the noise model's small planes do not see: sqrt(sigma_wide^2 - sigma^2),
+    with sigma_wide measured as the noise model's ``sigma_1m_m`` is (local planes seven samples wide) on every
+    :data:`WIDE_STEP`-th sample: the same estimate on the same number of points, so white noise gives
+    sigma_wide = sigma. A stereo camera's smoothed disparities give about 0.25 sigma, the LiDAR sweeps 2 to 3
+    sigma. A swept LiDAR measures a welding table as interleaved layers of scan lines a few millimetres apart,
+    and bends it by as much across the scene: error that grows with the scale it is seen at."""
+    coarse = np.ascontiguousarray(np.asarray(points, dtype=np.float64)[::WIDE_STEP, ::WIDE_STEP])
+    try:
+        wide = _sigma_1m(coarse, local_planes(coarse, window_px=7))
+    except NoSeamFound:  # too few full windows at that spacing: no measure of it
+        return 0.0
+    return float(np.sqrt(max(wide**2 - sigma_1m_m**2, 0.0)))

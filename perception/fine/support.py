@@ -10,10 +10,10 @@ largest of all when every one was prompted (a stray click on the table's border)
 
 "Flat" is as flat as the sensor can show it. A swept LiDAR measures a welding table as interleaved layers of
 scan lines a few millimetres apart, and bends it by as much across the scene: error that grows with the scale
-it is seen at, which the noise model (planes seven samples wide) does not hold. It is measured here the same
-way on planes three times as wide (:func:`structured_error`); zero for a stereo or structured-light camera,
-whose error does not grow with the scale. And what lies behind the support is counted on the points of fitted
-surfaces: a LiDAR's mixed points at a plate's top edge, seen between it and the table, fit no surface.
+it is seen at, which the noise model's sigma (planes seven samples wide) does not hold; its structured error
+(:func:`perception.fine.noise.structured_error`, on planes three times as wide) does, and is allowed for. And
+what lies behind the support is counted on the points of fitted surfaces: a LiDAR's mixed points at a plate's
+top edge, seen between it and the table, fit no surface.
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from perception.errors import NoSeamFound
 from perception.fine.types import FloatArray, NoiseModel, Surface, SurfaceSet
 
 ABOVE_SHARE = 0.97  # at least this share of all points lies on or above the support
@@ -40,20 +39,18 @@ def find_support(
     noise: NoiseModel,
     *,
     prompted: frozenset[int] = frozenset(),
-    structure_1m: float | None = None,
 ) -> frozenset[int]:
     """The labels of the support plane in an (h, w, 3) work cloud: the best qualifying plane and every
-    other piece of the same plane (the table seen on both sides of the part); empty when none qualifies.
-    ``structure_1m``: the capture's :func:`structured_error`, when the caller has measured it."""
+    other piece of the same plane (the table seen on both sides of the part); empty when none qualifies."""
     p = np.asarray(points, dtype=np.float64)
     valid = np.isfinite(p[..., 2])
     every = np.flatnonzero(valid)
-    q = p.reshape(-1, 3)[every[:: max(1, len(every) // 40000)]]  # the sample, gathered alone
+    sample = every[:: max(1, len(every) // 40000)]
+    q = p.reshape(-1, 3)[sample]  # the sample, gathered alone
     tol = _off_tolerance(noise, q[:, 2])
-    structure_1m = structured_error(p, noise) if structure_1m is None else structure_1m
-    flatness = FLATNESS_M + BEHIND_SIGMA * structure_1m * q[:, 2] ** 2  # the table as flat as the sensor shows it
+    flatness = _flatness(noise, q[:, 2])
     behind = BEHIND_SIGMA * noise.sigma_m(q[:, 2]) + flatness  # a point further behind is not on the plane
-    on_surface = surfaces.labels.reshape(-1)[every[:: max(1, len(every) // 40000)]] >= 0
+    on_surface = surfaces.labels.reshape(-1)[sample] >= 0
     labelled = int((surfaces.labels >= 0).sum())
     qualify: dict[int, frozenset[int]] = {}  # each qualifying plane's label: the labels of all its pieces
     for s in surfaces.surfaces:
@@ -62,7 +59,7 @@ def find_support(
         res = q @ s.normal + s.offset
         if np.mean((res >= -behind)[on_surface]) < ABOVE_SHARE:
             continue
-        pieces = _pieces(surfaces, s, noise, structure_1m)
+        pieces = _pieces(surfaces, s, noise)
         mine = np.isin(surfaces.labels, sorted(pieces))
         if _carries(p, surfaces, noise, pieces, mine, q[res > tol]) or _touches(surfaces, noise, pieces, mine, s):
             qualify[s.label] = pieces
@@ -81,7 +78,13 @@ def _off_tolerance(noise: NoiseModel, z: FloatArray | float) -> FloatArray:
     return np.asarray(6.0 * noise.sigma_m(z) + 0.002)
 
 
-def _pieces(surfaces: SurfaceSet, S: Surface, noise: NoiseModel, structure_1m: float = 0.0) -> frozenset[int]:
+def _flatness(noise: NoiseModel, z: FloatArray | float) -> FloatArray:
+    """How flat a table at range ``z`` can be shown: a table's own flatness and four times the sensor's
+    structured error there."""
+    return np.asarray(FLATNESS_M + BEHIND_SIGMA * noise.structure_1m_m * np.square(z))
+
+
+def _pieces(surfaces: SurfaceSet, S: Surface, noise: NoiseModel) -> frozenset[int]:
     """The labels of plane ``S`` and of every other piece of the same plane (the table seen on both sides of
     the part)."""
     same = {S.label}
@@ -89,31 +92,11 @@ def _pieces(surfaces: SurfaceSet, S: Surface, noise: NoiseModel, structure_1m: f
         parallel = s.kind == "plane" and s.label != S.label and float(s.normal @ S.normal) > np.cos(np.radians(3.0))
         # the same plane: the piece's mean within a table's flatness of the plane (its noise averages out over
         # its points, the sensor's structured error does not); a plate lying on the table is its thickness above it
-        flatness = FLATNESS_M + BEHIND_SIGMA * structure_1m * s.z_m**2
-        if parallel and abs(float(S.residual(s.centroid[None])[0])) <= flatness + 3.0 * float(
+        if parallel and abs(float(S.residual(s.centroid[None])[0])) <= float(_flatness(noise, s.z_m)) + 3.0 * float(
             noise.sigma_m(s.z_m)
         ) / np.sqrt(max(s.n_points, 1)):
             same.add(s.label)
     return frozenset(same)
-
-
-WIDE_STEP = 3  # the structured error is measured on planes this many times as wide as the noise model's
-
-
-def structured_error(points: NDArray[np.floating], noise: NoiseModel) -> float:
-    """The depth error at 1 m that the noise model's small planes do not see: sqrt(sigma_wide^2 - sigma^2),
-    with sigma_wide measured as the noise model's sigma is (:func:`perception.fine.noise.estimate_noise`, local
-    planes seven samples wide) on every :data:`WIDE_STEP`-th sample: the same estimate on the same number of
-    points, so white noise gives sigma_wide = sigma. A stereo camera's smoothed disparities give about 0.25
-    sigma, the LiDAR sweeps 2 to 3 sigma."""
-    from perception.fine.noise import estimate_noise, local_planes
-
-    coarse = np.ascontiguousarray(np.asarray(points, dtype=np.float64)[::WIDE_STEP, ::WIDE_STEP])
-    try:
-        wide = estimate_noise(coarse, local_planes(coarse, window_px=7)).sigma_1m_m
-    except NoSeamFound:  # too few full windows at that spacing: no measure of it
-        return 0.0
-    return float(np.sqrt(max(wide**2 - noise.sigma_1m_m**2, 0.0)))
 
 
 def _carries(p: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, pieces: frozenset[int],

@@ -20,7 +20,7 @@ class NoiseModel:
     sigma(z) = max(sigma_1m_m * z^2, floor_m): one-sigma depth noise at range z (normal incidence);
     pixel_angle_rad: the angle between neighbouring rays at the work resolution (spacing = z * angle);
     structure_1m_m: the error at 1 m that planes a few times wider see and the noise model's do not
-    (:func:`perception.fine.support.structured_error`; 0 when not measured).
+    (:func:`perception.fine.noise.structured_error`; 0 when not measured).
     """
 
     sigma_1m_m: float

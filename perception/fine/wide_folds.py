@@ -2,17 +2,17 @@
 
 A swept LiDAR draws each face in layers of scan lines a few millimetres apart and rounds its corners over
 20-40 mm; seen through its range image the faces break into fragments a few dozen pixels wide, and their folds
-land inside the rounding, 10-20 mm off the corner, or nowhere. The measured structured error
-(:func:`perception.fine.support.structured_error`) says when a capture is such a one: when it is twice the
-noise model's own sigma or more (2.1-2.8 on thillRobot's plate scans; 0.1-0.3 on stereo, 0.9 on the table
-tee's scan, whose corners the view's surfaces place) and parts stand on a table, the faces are found again as
-wide planes, fitted within 4 sigma_wide (the noise seen
-at the scale of a face, sqrt(sigma^2 + structure^2)) to the points off the support, one after another (RANSAC,
-each plane its largest connected piece). Two of them that turn by a fold's angle and meet concavely (each
-one's points near their line lie on the camera side of the other) give a seam along their intersection where
-both have points within the corner's rounding of it, each reaching well beyond the rounding (a strip fitted
-across the rounding itself is no face), the strongest of parallel candidates within the rounding of each other
-kept (a face standing on a plate lying on the table meets both planes: the plate's, nearer, is the fold).
+land inside the rounding, 10-20 mm off the corner, or nowhere. The measured structured error (the noise model's
+``structure_1m_m``, :func:`perception.fine.noise.structured_error`) says when a capture is such a one: when it
+is twice the noise model's own sigma or more (2.1-2.8 on thillRobot's plate scans; 0.1-0.3 on stereo, 0.9 on
+the table tee's scan, whose corners the view's surfaces place) and parts stand on a table, the faces are found
+again as wide planes, fitted within 4 sigma_wide (the noise seen at the scale of a face, sqrt(sigma^2 +
+structure^2)) to the points off the support, one after another (RANSAC, each plane its largest connected
+piece). Two of them that turn by a fold's angle and meet concavely (each one's points near their line lie on
+the camera side of the other) give a seam along their intersection where both have points within the corner's
+rounding of it, each reaching well beyond the rounding (a strip fitted across the rounding itself is no face),
+the strongest of parallel candidates within the rounding of each other kept (a face standing on a plate lying
+on the table meets both planes: the plate's, nearer, is the fold).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ class WidePlane:
 
 
 def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, *, support: frozenset[int],
-                    structure_1m: float, params: WideFoldParams | None = None) -> list[SeamCurve]:  # fmt: skip
+                    params: WideFoldParams | None = None) -> list[SeamCurve]:  # fmt: skip
     """The folds between the wide planes of the (h, w, 3) work cloud ``points`` off the ``support``; none
     unless parts stand on a support (a table) and the capture's structured error (at 1 m) is at least
     :attr:`WideFoldParams.min_structure` times its noise model's sigma. A cloud of a part alone (a groove
@@ -61,6 +61,7 @@ def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: N
     its curved faces' own bending counts as structure at the wider planes' scale: wide planes would cut
     them into facets."""
     wp = params or WideFoldParams()
+    structure_1m = noise.structure_1m_m
     if not support or structure_1m < wp.min_structure * noise.sigma_1m_m:
         return []
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)

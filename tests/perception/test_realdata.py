@@ -211,7 +211,7 @@ def test_a_lidar_tube_on_a_plate_gives_its_fillet_and_no_groove_on_the_table() -
     # thillRobot's tube on a plate on a table (1plate_1tube partA): the LiDAR draws the table in layers of scan
     # lines 3 mm apart and bends it by as much across the scene, and its border curls up 10 mm over its last
     # 20 mm. With the table taken to be flat to 1 mm it was no support, and the curl made a 59 mm "V-groove"
-    # 326 mm from the reference fillet. The table flat as its sensor shows it (support.structured_error) is
+    # 326 mm from the reference fillet. The table flat as its sensor shows it (noise.structured_error) is
     # the support; the tube's front face and the base plate, found again as wide planes (fine.wide_folds:
     # the structure is 2.1 times the noise), give the fillet: 105 mm, a median 4.0 mm from the reference
     # (corner rounded over 20-40 mm, tolerance 10 mm), covering all of it, and nothing else

@@ -170,12 +170,10 @@ def test_the_structured_error_is_what_only_wider_planes_see() -> None:
     # the seven-sample planes mostly lie within a band and see 0.34 mm in all at 0.8 m (0.3 of it the white
     # noise), the planes three times as wide span three or four bands and see the offsets: 0.38 mm more (0.38
     # to 0.70 over eight draws of the bands: about their spread, less what a plane through three takes up)
-    from perception.fine.support import structured_error
-
-    p, _, nm = _banded_table(0.0)
-    assert structured_error(p, nm) * 0.64 < 0.05e-3
-    p, _, nm = _banded_table(0.001)
-    at_08 = structured_error(p, nm) * 0.64
+    _, _, nm = _banded_table(0.0)
+    assert nm.structure_1m_m * 0.64 < 0.05e-3
+    _, _, nm = _banded_table(0.001)
+    at_08 = nm.structure_1m_m * 0.64
     assert nm.sigma_m(0.8) < 0.4e-3 and 0.3e-3 < at_08 < 1.0e-3, (nm.sigma_m(0.8), at_08)
 
 

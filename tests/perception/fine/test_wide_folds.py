@@ -9,7 +9,7 @@ import numpy as np
 
 from perception.evaluate import point_to_polyline_distance, resample_polyline
 from perception.fine.noise import estimate_noise, local_planes
-from perception.fine.support import find_support, structured_error
+from perception.fine.support import find_support
 from perception.fine.surfaces import segment_surfaces
 from perception.fine.wide_folds import runs_along, wide_fold_seams
 
@@ -25,8 +25,7 @@ def _banded(band_sigma_m: float, seed: int = 0):
     lp = local_planes(p, window_px=7)
     nm = estimate_noise(p, lp)
     surf = segment_surfaces(p, lp, nm, factor=1)
-    structure = structured_error(p, nm)
-    return p, nm, surf, find_support(p, surf, nm, structure_1m=structure), structure
+    return p, nm, surf, find_support(p, surf, nm), nm.structure_1m_m
 
 
 def _foot_coverage(seams, gt: np.ndarray, within_m: float) -> float:
@@ -49,14 +48,14 @@ def test_the_webs_foot_is_found_between_wide_planes_under_a_lidars_banding() -> 
     gt = rendered("tee").ground_truth[0].points_camera
     p, nm, surf, sup, structure = _banded(0.0015)
     assert sup and structure >= 2.0 * nm.sigma_1m_m, (structure / nm.sigma_1m_m, sup)
-    seams = wide_fold_seams(p, surf, nm, support=sup, structure_1m=structure)
+    seams = wide_fold_seams(p, surf, nm, support=sup)
     assert [s.joint for s in seams] == ["fillet"]
     assert float(np.median(point_to_polyline_distance(seams[0].points, gt))) < 0.002
     assert _foot_coverage(seams, gt, 0.003) >= 0.9
     covered = []
     for seed in range(1, 6):
         p, nm, surf, sup, structure = _banded(0.0015, seed=seed)
-        seams = wide_fold_seams(p, surf, nm, support=sup, structure_1m=structure)
+        seams = wide_fold_seams(p, surf, nm, support=sup)
         assert all(np.median(point_to_polyline_distance(s.points, gt)) < 0.01 for s in seams), seed
         covered.append(_foot_coverage(seams, gt, 0.003))
     assert sum(c >= 0.6 for c in covered) >= 3, covered
@@ -66,7 +65,7 @@ def test_no_wide_planes_where_the_noise_model_holds_the_error() -> None:
     # white noise only: the structured error is under twice the noise, the view's own surfaces place the folds
     p, nm, surf, sup, structure = _banded(0.0)
     assert structure < 2.0 * nm.sigma_1m_m
-    assert wide_fold_seams(p, surf, nm, support=sup, structure_1m=structure) == []
+    assert wide_fold_seams(p, surf, nm, support=sup) == []
 
 
 def test_runs_along_needs_direction_nearness_and_overlap() -> None:
