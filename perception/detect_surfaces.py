@@ -47,6 +47,8 @@ def detect_surfaces(
     fitted surfaces as artifacts, for the overlay) when there is none. ``organized``: the (H, W, 3) points
     to use instead of the depth back-projected through the pixel centres (a cloud's range image,
     :mod:`perception.cloud_view`, keeps its points where they were measured)."""
+    from perception.fine.wide_folds import in_place_of_along
+
     del segmenter  # same signature as detect(); the surfaces stage does not use the image segmenter yet
     p = params or DetectParams()
     log = StepLog()
@@ -66,7 +68,7 @@ def detect_surfaces(
     log.counts["wide_folds"] = len(wide)
     t_coarse = time.perf_counter() - t0
     curves, used = _full_resolution_steps(curves, surf, noise, skip, pairs, work, organized, capture, log)
-    curves = _with_wide_folds(curves, wide, noise)
+    curves = in_place_of_along(curves, wide, noise)
     t_fine = time.perf_counter() - t0 - t_coarse
     if not curves:
         raise NoSeamFound(
@@ -259,20 +261,6 @@ def _wide_folds(work: NDArray[np.float64], surf: SurfaceSet, noise: NoiseModel, 
 
     found = wide_fold_seams(work, surf, noise, support=support)
     return [c for c in found if not set(c.surfaces) & (skip - support)]
-
-
-def _with_wide_folds(curves: list[SeamCurve], wide: list[SeamCurve], noise: NoiseModel) -> list[SeamCurve]:
-    """``curves`` with the wide planes' folds, each in place of the seams that run along it within the corner's
-    rounding (the view's fragments place a rounded corner's fold inside the rounding, 10-20 mm off it)."""
-    if not wide:
-        return curves
-    from perception.fine.wide_folds import WideFoldParams, runs_along
-
-    wp = WideFoldParams()
-    z = float(median(np.concatenate([c.points[:, 2] for c in wide])))
-    reach = wp.reach_spacings * float(noise.spacing_m(z))
-    kept = [c for c in curves if not any(runs_along(c.points, w.points, reach, wp.parallel_rad) for w in wide)]
-    return kept + wide
 
 
 def _duplicates(seam: SeamCurve, others: list[SeamCurve], *, within_m: float = 0.002) -> bool:

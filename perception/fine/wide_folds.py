@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from perception.fine.folds import FoldParams, joint_type, line_coords
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, SurfaceSet
-from perception.fits import connected_components
+from perception.fits import connected_components, median
 
 
 @dataclass(frozen=True)
@@ -182,10 +182,22 @@ def runs_along(curve: FloatArray, other: FloatArray, reach: float, parallel_rad:
     return 0.0 <= t <= lv and float(np.linalg.norm(d - t * v)) < reach
 
 
+def in_place_of_along(curves: list[SeamCurve], wide: list[SeamCurve], noise: NoiseModel) -> list[SeamCurve]:
+    """``curves`` with the wide planes' folds ``wide``, each in place of the seams that run along it within the
+    corner's rounding (the view's fragments place a rounded corner's fold inside the rounding, 10-20 mm off)."""
+    if not wide:
+        return curves
+    wp = WideFoldParams()
+    z = float(median(np.concatenate([c.points[:, 2] for c in wide])))
+    reach = wp.reach_spacings * float(noise.spacing_m(z))
+    kept = [c for c in curves if not any(runs_along(c.points, w.points, reach, wp.parallel_rad) for w in wide)]
+    return kept + wide
+
+
 def _majority(labels: NDArray[np.int32]) -> int:
     """The segmented surface most of a wide plane's points belong to (-1: none)."""
     own = labels[labels >= 0]
     return int(np.bincount(own).argmax()) if own.size else -1
 
 
-__all__ = ["WideFoldParams", "WidePlane", "runs_along", "wide_fold_seams", "wide_planes"]
+__all__ = ["WideFoldParams", "WidePlane", "in_place_of_along", "runs_along", "wide_fold_seams", "wide_planes"]
