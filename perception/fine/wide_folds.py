@@ -9,9 +9,10 @@ the table tee's scan, whose corners the view's surfaces place) and parts stand o
 again as wide planes, fitted within 4 sigma_wide (the noise seen at the scale of a face, sqrt(sigma^2 +
 structure^2)) to the points off the support, one after another (RANSAC, each plane its largest connected
 piece). Two of them that turn by a fold's angle and meet concavely (each one's points near their line lie on
-the camera side of the other) give a seam along their intersection where both have points within the corner's
-rounding of it, each reaching well beyond the rounding (a strip fitted across the rounding itself is no face),
-the strongest of parallel candidates within the rounding of each other kept (a face standing on a plate lying
+the camera side of the other, or on it: not behind it, as a convex edge's do) give a seam along their
+intersection where both have points within the corner's rounding of it, each reaching well beyond the
+rounding (a strip fitted across the rounding itself is no face), the strongest of parallel candidates within
+the rounding of each other kept (a face standing on a plate lying
 on the table meets both planes: the plate's, nearer, is the fold).
 """
 
@@ -76,13 +77,14 @@ def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: N
     sigma_wide = float(np.hypot(noise.sigma_m(z), structure_1m * z * z))
     # the sample's own spacing: the work image's, thinned by the sampling
     spacing = float(noise.spacing_m(z)) * float(np.sqrt(len(idx) / len(pick)))
-    planes = wide_planes(q, wp.tol_sigma * sigma_wide, 4.0 * spacing, wp, rng)
+    tol = wp.tol_sigma * sigma_wide
+    planes = wide_planes(q, tol, 4.0 * spacing, wp, rng)
     up = surfaces.surfaces[min(support)].normal
     reach = wp.reach_spacings * float(noise.spacing_m(z))
     cands = []
     for i, a in enumerate(planes):
         for b in planes[i + 1 :]:
-            found = _fold(q, a, b, reach, wp)
+            found = _fold(q, a, b, reach, tol, wp)
             if found is not None:
                 cands.append((len(a.members) + len(b.members), a, b, *found))
     out: list[SeamCurve] = []
@@ -134,7 +136,7 @@ def _largest(labels: NDArray[np.int64]) -> NDArray[np.bool_]:
     return np.asarray(labels == np.argmax(np.bincount(labels)))
 
 
-def _fold(q: FloatArray, a: WidePlane, b: WidePlane, reach: float,
+def _fold(q: FloatArray, a: WidePlane, b: WidePlane, reach: float, tol: float,
           wp: WideFoldParams) -> tuple[FloatArray, float] | None:  # fmt: skip
     """Planes ``a`` and ``b``'s seam: its two ends and how far the narrower face reaches from it; None unless
     they turn by a fold's angle, meet concavely, both have points within ``reach`` of their line along
@@ -150,8 +152,9 @@ def _fold(q: FloatArray, a: WidePlane, b: WidePlane, reach: float,
     na, nb = da <= reach, db <= reach
     if na.sum() < 10 or nb.sum() < 10:
         return None
-    # concave: each face's points near the line lie on the camera side of the other's plane
-    if float(np.median(xb[nb] @ a.normal + a.offset)) <= 0 or float(np.median(xa[na] @ b.normal + b.offset)) <= 0:
+    # concave: each face's points near the line lie on the camera side of the other's plane or on it (within
+    # the planes' tolerance ``tol``: a face the sensor bends leans over its foot); a convex edge's lie behind
+    if float(np.median(xb[nb] @ a.normal + a.offset)) < -tol or float(np.median(xa[na] @ b.normal + b.offset)) < -tol:
         return None
     lo = max(float(np.percentile(ta[na], 2)), float(np.percentile(tb[nb], 2)))
     hi = min(float(np.percentile(ta[na], 98)), float(np.percentile(tb[nb], 98)))

@@ -11,7 +11,7 @@ from perception.evaluate import point_to_polyline_distance, resample_polyline
 from perception.fine.noise import estimate_noise, local_planes
 from perception.fine.support import find_support
 from perception.fine.surfaces import segment_surfaces
-from perception.fine.wide_folds import runs_along, wide_fold_seams
+from perception.fine.wide_folds import WideFoldParams, WidePlane, _fold, runs_along, wide_fold_seams
 
 from .scenes import rendered
 
@@ -74,3 +74,43 @@ def test_runs_along_needs_direction_nearness_and_overlap() -> None:
     assert not runs_along(np.array([[0.02, 0.02, 1.0], [0.06, 0.02, 1.0]]), other, 0.01, np.radians(10.0))
     assert not runs_along(np.array([[0.02, 0.0, 1.0], [0.02, 0.04, 1.0]]), other, 0.01, np.radians(10.0))
     assert not runs_along(np.array([[0.15, 0.0, 1.0], [0.19, 0.0, 1.0]]), other, 0.01, np.radians(10.0))
+
+
+def _plane(x: np.ndarray) -> WidePlane:
+    """A wide plane fitted to all of ``x``, its normal towards a camera at the origin."""
+    c = x.mean(axis=0)
+    n = np.linalg.eigh(np.cov((x - c).T))[1][:, 0]
+    n = -n if float(n @ c) > 0 else n
+    return WidePlane(n, -float(n @ c), np.arange(len(x)), c)
+
+
+def _fold_of(base: np.ndarray, face: np.ndarray):
+    q = np.vstack([base, face])
+    a, b = _plane(base), _plane(face)
+    b = WidePlane(b.normal, b.offset, b.members + len(base), b.centroid)
+    return _fold(q, a, b, 0.022, 0.004, WideFoldParams())
+
+
+def test_a_fold_whose_face_leans_over_its_foot_is_concave_and_a_convex_edge_is_not() -> None:
+    # camera 0.5 m above (at the origin, looking down +z); base plate z = 0.5 m, a face standing on it along
+    # the x axis at y = 0, bent back 18 deg by the sensor (its top towards -y), seen from +y; the base sampled
+    # 26 mm behind the face's foot too (the face's plane meets it there) and not in the rounding at the foot
+    # (0-6 mm): its points near the seam lie on both sides of the face's plane, their median 1 mm behind it
+    g = np.arange(-0.1, 0.1001, 0.004)
+    ys = np.arange(-0.026, 0.1001, 0.002)
+    bx, by = np.meshgrid(g, ys)
+    base = np.column_stack([bx.ravel(), by.ravel(), np.full(bx.size, 0.5)])
+    base = base[(base[:, 1] <= 1e-9) | (base[:, 1] > 0.0059)]
+    hx, hh = np.meshgrid(g, np.arange(0.015, 0.08, 0.002))
+    lean = np.tan(np.radians(18.0))
+    face = np.column_stack([hx.ravel(), -lean * hh.ravel(), 0.5 - hh.ravel()])
+    found = _fold_of(base, face)
+    assert found is not None
+    ends, _ = found
+    # the fold lies on the foot line (y = 0, z = 0.5) along the face's whole 200 mm
+    assert np.abs(ends[:, 1]).max() < 1e-6 and np.abs(ends[:, 2] - 0.5).max() < 1e-6
+    assert abs(abs(ends[1, 0] - ends[0, 0]) - 0.192) < 0.01
+    # a box's top (z = 0.5 m, y <= 0) and its side going down from y = 0: convex, each behind the other
+    top = np.vstack([base[base[:, 1] <= 1e-9] - [0, dy, 0] for dy in (0.0, 0.026, 0.052)])
+    side = np.column_stack([hx.ravel(), np.zeros(hx.size), 0.5 + hh.ravel()])
+    assert _fold_of(top, side) is None
