@@ -11,14 +11,15 @@ structure^2)) to the points off the support, one after another (RANSAC, each pla
 piece). Two of them that turn by a fold's angle and meet concavely (each one's points near their line lie on
 the camera side of the other, or on it: not behind it, as a convex edge's do) give a seam along their
 intersection where both have points within the corner's rounding of it, each reaching well beyond the
-rounding (a strip fitted across the rounding itself is no face), the strongest of parallel candidates within
-the rounding of each other kept (a face standing on a plate lying
-on the table meets both planes: the plate's, nearer, is the fold).
+rounding (a strip fitted across the rounding itself is no face). Parallel candidates within the rounding of
+each other and overlapping are one seam: the strongest's, lengthened over the others' spans (a face standing
+on a plate lying on the table meets both planes: the plate's, nearer, is the fold; a face the sensor bends
+comes out as pieces, each with its stretch of the one fold).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -88,11 +89,12 @@ def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: N
             if found is not None:
                 cands.append((len(a.members) + len(b.members), a, b, *found))
     out: list[SeamCurve] = []
-    kept: list[FloatArray] = []
     for _, a, b, ends, height in sorted(cands, key=lambda c: -c[0]):
-        if any(runs_along(ends, k, reach, wp.parallel_rad) for k in kept):
+        # a weaker candidate along a stronger one, overlapping it, is the same seam: it only lengthens it
+        same = next((i for i, c in enumerate(out) if _along(ends, c.points, reach, wp.parallel_rad)), None)
+        if same is not None:
+            out[same] = _lengthened(out[same], ends)
             continue
-        kept.append(ends)
         joint = joint_type(a.normal, b.normal, up, height, FoldParams().lap_height_m)
         labels = (_majority(lab[pick[a.members]]), _majority(lab[pick[b.members]]))
         out.append(SeamCurve("linear", joint, ends, np.tile(a.normal, (2, 1)), np.tile(b.normal, (2, 1)), labels,
@@ -168,6 +170,29 @@ def _fold(q: FloatArray, a: WidePlane, b: WidePlane, reach: float, tol: float,
     if extent < 2.0 * reach:
         return None
     return np.array([p0 + lo * u, p0 + hi * u]), extent
+
+
+def _along(ends: FloatArray, other: FloatArray, reach: float, parallel_rad: float) -> bool:
+    """Whether segment ``ends`` and segment ``other`` are one seam: either runs along the other, or they are
+    parallel, each end of ``ends`` within ``reach`` of ``other``'s line, and their spans along it overlap."""
+    if runs_along(ends, other, reach, parallel_rad) or runs_along(other, ends, reach, parallel_rad):
+        return True
+    u = ends[-1] - ends[0]
+    v = other[-1] - other[0]
+    lv = float(np.linalg.norm(v))
+    if abs(float(u @ v)) < np.cos(parallel_rad) * float(np.linalg.norm(u)) * lv:
+        return False
+    t, d = line_coords(ends, other[0], v / lv)
+    return bool(d.max() < reach and t.max() > 0.0 and t.min() < lv)
+
+
+def _lengthened(curve: SeamCurve, ends: FloatArray) -> SeamCurve:
+    """``curve`` (a segment) lengthened along its line over the projection of segment ``ends``."""
+    p0, v = curve.points[0], curve.points[-1] - curve.points[0]
+    lv = float(np.linalg.norm(v))
+    t = (ends - p0) @ (v / lv)
+    lo, hi = min(0.0, float(t.min())), max(lv, float(t.max()))
+    return replace(curve, points=np.array([p0 + lo * v / lv, p0 + hi * v / lv]))
 
 
 def runs_along(curve: FloatArray, other: FloatArray, reach: float, parallel_rad: float) -> bool:

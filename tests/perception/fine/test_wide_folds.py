@@ -11,7 +11,16 @@ from perception.evaluate import point_to_polyline_distance, resample_polyline
 from perception.fine.noise import estimate_noise, local_planes
 from perception.fine.support import find_support
 from perception.fine.surfaces import segment_surfaces
-from perception.fine.wide_folds import WideFoldParams, WidePlane, _fold, runs_along, wide_fold_seams
+from perception.fine.types import SeamCurve
+from perception.fine.wide_folds import (
+    WideFoldParams,
+    WidePlane,
+    _along,
+    _fold,
+    _lengthened,
+    runs_along,
+    wide_fold_seams,
+)
 
 from .scenes import rendered
 
@@ -114,3 +123,19 @@ def test_a_fold_whose_face_leans_over_its_foot_is_concave_and_a_convex_edge_is_n
     top = np.vstack([base[base[:, 1] <= 1e-9] - [0, dy, 0] for dy in (0.0, 0.026, 0.052)])
     side = np.column_stack([hx.ravel(), np.zeros(hx.size), 0.5 + hh.ravel()])
     assert _fold_of(top, side) is None
+
+
+def test_overlapping_folds_along_one_line_are_one_seam_lengthened_over_both() -> None:
+    # the strongest candidate 0-100 mm along x; a weaker one 80-150 mm, 4-6 mm beside it (the rounding is 22)
+    strong = np.array([[0.0, 0.0, 0.5], [0.1, 0.0, 0.5]])
+    weak = np.array([[0.08, 0.004, 0.5], [0.15, 0.006, 0.5]])
+    wp = WideFoldParams()
+    assert _along(weak, strong, 0.022, wp.parallel_rad) and _along(strong, weak, 0.022, wp.parallel_rad)
+    seam = SeamCurve("linear", "fillet", strong, np.tile([0.0, 0.0, -1.0], (2, 1)), np.tile([0.0, -1.0, 0.0], (2, 1)),
+                     (1, 2), 100, 0.001)  # fmt: skip
+    assert np.allclose(_lengthened(seam, weak).points, [[0.0, 0.0, 0.5], [0.15, 0.0, 0.5]], atol=1e-12)
+    # end to end with a gap, 30 mm beside it, or turned by 20 deg: other seams
+    assert not _along(np.add(weak, [0.05, 0.0, 0.0]), strong, 0.022, wp.parallel_rad)
+    assert not _along(np.add(weak, [0.0, 0.03, 0.0]), strong, 0.022, wp.parallel_rad)
+    turned = np.array([[0.08, 0.0, 0.5], [0.08 + 0.07 * np.cos(0.35), 0.07 * np.sin(0.35), 0.5]])
+    assert not _along(turned, strong, 0.022, wp.parallel_rad)
