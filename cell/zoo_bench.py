@@ -70,6 +70,8 @@ class CaptureScore:
     outcome: str  # "seams", "no_seam" (NoSeamFound) or "error" (anything else: a bug)
     reason: str = ""
     missed_joints: list[str] = field(default_factory=list)
+    joint_named: int = 0  # found seams whose every assigned detection names the truth's joint
+    misnamed_joints: list[str] = field(default_factory=list)  # the others: "fillet as v_groove"
     unseen_seams: int = 0  # detected on a seam of the weldment this shot does not count as seen
     overreach_mm: float = 0.0  # longest stretch of an assigned seam beyond (over 3 mm from) its seen run
     rmse_seen_mm: float = float("nan")  # the errors against the seen runs only
@@ -214,6 +216,7 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
         time_s=dt,
         outcome="seams",
         missed_joints=[meta["truth"][s.index]["joint"] for s, f in zip(rep.seams, found, strict=True) if not f],
+        **_joint_names(rep.seams, found, meta["truth"], [s.joint for s in result.seams]),
         unseen_seams=len(unseen),
         overreach_mm=round(1000.0 * m.overreach_m, 1),
         rmse_seen_mm=float(np.sqrt(np.mean(es**2))) if es.size else nan,
@@ -223,6 +226,23 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
         point_incidence_rad=[round(float(x), 4) for x in m.incidence_rad],
     )
     return score, (result if keep_result else None)
+
+
+def _joint_names(seams: Any, found: list[bool], truth: list[dict[str, Any]],
+                 joints: list[str | None]) -> dict[str, Any]:  # fmt: skip
+    """How many found seams are named as their truth's joint by every detection assigned to them, and the others
+    ("fillet as v_groove")."""
+    named, misnamed = 0, []
+    for s, f in zip(seams, found, strict=True):
+        if not f:
+            continue
+        want = truth[s.index]["joint"]
+        got = sorted({str(joints[d]) for d in s.detected_ids})
+        if got == [want]:
+            named += 1
+        else:
+            misnamed.append(f"{want} as {'+'.join(got)}")
+    return {"joint_named": named, "misnamed_joints": misnamed}
 
 
 def _unscored(base: dict[str, Any], meta: dict[str, Any], dt: float, outcome: str, reason: str) -> CaptureScore:
@@ -325,6 +345,7 @@ class ZooReport:
             "false_seams": false,
             "reported": reported,
             "split_seams": sum(s.split_seams for s in scores),
+            "joint_named": sum(s.joint_named for s in scores),
             "unseen_seams": sum(s.unseen_seams for s in scores),
             "overreach_mm_p95": r(float(np.percentile([s.overreach_mm for s in scores], 95)) if scores else np.nan, 1),
             "rmse_seen_mm": r(float(rmse_seen)),

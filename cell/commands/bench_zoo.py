@@ -85,12 +85,14 @@ def run(args: argparse.Namespace) -> int:
     t = Table(title=f"zoo, {args.split} split: {summary['captures']} captures in {summary['wall_s']:.0f} s "
                     f"(a capture passes with every seam found, none false, RMSE <= 0.3 mm, max <= 1 mm)")  # fmt: skip
     for c in ("family", "captures", "passed", "GT seams", "found", "recall", "false", "reported", "split", "unseen",
-              "no seam", "errors", "over p95 mm", "RMSE mm", "p95 mm", "max mm", "t med s", "t p95 s"):  # fmt: skip
+              "joint named", "no seam", "errors", "over p95 mm", "RMSE mm", "p95 mm", "max mm", "t med s",
+              "t p95 s"):  # fmt: skip
         t.add_column(c, justify="right")
     rows = [*summary["families"].items(), ("overall", summary["overall"])]
     for name, s in rows:
         t.add_row(name, str(s["captures"]), str(s["passed"]), str(s["gt_seams"]), str(s["found"]), _f(s["recall"], 3),
                   str(s["false_seams"]), str(s["reported"]), str(s["split_seams"]), str(s["unseen_seams"]),
+                  f"{s['joint_named']}/{s['found']}",
                   str(s["no_seam"]), str(s["errors"]), _f(s["overreach_mm_p95"], 1), _f(s["rmse_mm"]),
                   _f(s["p95_mm"]), _f(s["max_mm"]), _f(s["time_s_median"]),
                   _f(s["time_s_p95"]))  # fmt: skip
