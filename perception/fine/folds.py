@@ -33,6 +33,7 @@ class FoldParams:
 
 SHALLOW_TURN_RAD = np.radians(80.0)
 CAMERA_DOWN = np.array([0.0, 0.0, -1.0])  # "up" with no support: as though the camera looked straight down
+MIN_TEE_POINTS = 20  # a face goes on past another plane when this many of its points lie beyond it
 
 
 def rays_onto(x: FloatArray, s: Surface) -> FloatArray:
@@ -166,10 +167,28 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
         pts = np.array([p0 + t0 * u, p0 + t1 * u])
         height = _standing_height(p, lab, A, B, p0, u, CAMERA_DOWN if up is None else up)
         joint = joint_type(A.normal, B.normal, up, height, fp.lap_height_m)
+        if joint == "inside_corner" and _tee(p, lab, A, B, (p0, u), (t0, t1), reach):
+            joint = "fillet"  # a plate's edge on another's face (a gusset on a wall): a T, not a corner
         support = int(ca[s0:s1].sum() + cb[s0:s1].sum())
         out.append(SeamCurve("linear", joint, pts, np.tile(A.normal, (2, 1)), np.tile(B.normal, (2, 1)),
                              (A.label, B.label), support, max(A.rms_m, B.rms_m)))  # fmt: skip
     return out
+
+
+def _tee(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, line: tuple[FloatArray, FloatArray],
+         span: tuple[float, float], margin_m: float) -> bool:  # fmt: skip
+    """Whether, beside the seam (its points' projections on the ``line`` (p0, u) within ``span``), one face goes
+    on past the other's plane, beyond ``margin_m`` on both sides of it (twenty points or more each side): the
+    other plate stands on it with its edge, a T-joint (a gusset near a wall's end has a strip of the wall beyond
+    it). At a corner joint both plates end at the fold, each face on one side of the other's plane (a wall
+    rising above the one butted against it shows its face past that one's plane only above the seam's end)."""
+    for face, other in ((A, B), (B, A)):
+        q = p[lab == face.label]
+        t = (q - line[0]) @ line[1]
+        r = other.residual(q[(t >= span[0]) & (t <= span[1])])
+        if (r > margin_m).sum() >= MIN_TEE_POINTS and (r < -margin_m).sum() >= MIN_TEE_POINTS:
+            return True
+    return False
 
 
 def _window_points(p: FloatArray, lab: NDArray[np.int32], labels: tuple[int, int], contact_px: NDArray[np.int64],

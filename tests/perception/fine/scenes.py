@@ -106,6 +106,27 @@ def v_groove(*, gap: float = 0.0, root: float = 0.0, near: bool = False) -> Scen
     return Scene("test", "", (TABLE, left, right), (seam,), cam)
 
 
+def gusset(*, at_end: bool = False) -> Scene:
+    """A triangular 8 mm gusset (60 mm along the floor, 50 mm up) in the middle of a 100 mm wall standing on a
+    12 mm floor, the wall going on 80 mm each side of it (``at_end``: 12 mm past it on one side): a T, its
+    vertical seam a fillet. Seen from the gusset's -y side, in front of the wall."""
+    floor = hull("floor", box_corners(0.30, 0.26, 0.012))
+    wall = hull("wall", box_corners(0.010, 0.18, 0.10), x=0.05, z=0.012)
+    y = 0.09 - 0.016 if at_end else 0.0
+    tri = np.array([[0.0, 0.0], [-0.06, 0.0], [0.0, 0.05]])  # legs along the floor (-x) and up the wall
+    g = hull("gusset", prism(tri, 0.008), x=0.045, y=y, z=0.012)
+    return scene_of((floor, wall, g), eye=(-0.25, -0.30, 0.32), target=(0.02, y, 0.04))
+
+
+def corner() -> Scene:
+    """Two 10 mm walls, 100 and 60 mm tall, butted at a corner on a 12 mm floor (the taller one's face shows
+    past the lower one's plane above it): a corner, its vertical seam an inside corner."""
+    floor = hull("floor", box_corners(0.26, 0.26, 0.012))
+    wx = hull("wall_x", box_corners(0.010, 0.20, 0.10), x=0.08, z=0.012)
+    wy = hull("wall_y", box_corners(0.17, 0.010, 0.06), x=-0.01, y=0.095, z=0.012)
+    return scene_of((floor, wx, wy), eye=(-0.25, -0.30, 0.32), target=(0.03, 0.03, 0.04))
+
+
 @cache
 def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
     sc = {"tee": tee, "pipe": pipe, "thin_pipe_far": lambda: pipe(0.015, view_scale=1.8), "butt": butt,
@@ -113,7 +134,8 @@ def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
           "butt_far": lambda: butt(0.0008, eye=(-0.16, -0.40, 0.51)),
           "wall": wall,
           "lap": lap, "lap_behind": lambda: lap(behind=True), "v_groove": v_groove,
-          "v_groove_open": lambda: v_groove(gap=0.0016, root=0.001, near=True), "branch": branch}[name]()  # fmt: skip
+          "v_groove_open": lambda: v_groove(gap=0.0016, root=0.001, near=True), "branch": branch,
+          "gusset": gusset, "gusset_end": lambda: gusset(at_end=True), "corner": corner}[name]()  # fmt: skip
     if noise == "stereo":
         return render(sc, noise="stereo", seed=seed, sensor=WHITE_ONLY)
     return render(sc, noise="none", seed=seed)

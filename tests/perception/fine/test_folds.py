@@ -256,3 +256,26 @@ def test_a_pipe_whose_radius_reads_a_millimetre_wide_still_meets_its_plate_and_a
     inside = np.vstack([centre + 0.1 * up + r * ring for r in (0.0, 0.01, 0.02)])
     below = np.vstack([centre + R * ring + h * up for h in (0.095, 0.097, 0.099)])
     assert _plane_cylinder(cap, pipe, inside, below, noise, FoldParams()) == []
+
+
+@pytest.mark.parametrize("name", ["gusset", "gusset_end"])
+def test_a_gusset_on_a_wall_is_a_tee_and_two_walls_butted_at_a_corner_are_an_inside_corner(name: str) -> None:
+    """Both seams stand between two vertical faces. The wall goes on past the gusset's plane on both sides of
+    it (80 mm, or 12 mm at the wall's end): a plate's edge on another's face, a fillet. The taller wall of
+    the corner shows its face past the lower one's plane too, but only above that one's top, beyond the
+    seam's end: a corner."""
+
+    def vertical(scene: str) -> list:
+        res = rendered(scene)
+        (gt,) = [g for g in res.ground_truth if "/" in g.name and not g.name.startswith("floor")]
+        near = [s for s in folds(scene) if np.median(point_to_polyline_distance(s.points, gt.points_camera)) < 0.002]
+        assert len(near) == 1
+        # on the seam's line (its ends clipped in the work image's 2 mm bins)
+        g0, g1 = gt.points_camera[0], gt.points_camera[-1]
+        u = (g1 - g0) / np.linalg.norm(g1 - g0)
+        d = near[0].points - g0
+        assert np.linalg.norm(d - np.outer(d @ u, u), axis=1).max() < 2e-4
+        return near[0].joint
+
+    assert vertical(name) == "fillet"
+    assert vertical("corner") == "inside_corner"
