@@ -67,7 +67,8 @@ def detect_surfaces(
         wide = _wide_folds(work, surf, noise, support, skip)
     log.counts["wide_folds"] = len(wide)
     t_coarse = time.perf_counter() - t0
-    curves, used = _full_resolution_steps(curves, surf, noise, skip, pairs, work, organized, capture, log)
+    curves, used = _full_resolution_steps(curves, surf, noise, skip, pairs, work, organized, capture, log,
+                                          on_support=bool(support))  # fmt: skip
     curves = in_place_of_along(curves, wide, noise)
     t_fine = time.perf_counter() - t0 - t_coarse
     if not curves:
@@ -187,15 +188,18 @@ def _full_resolution_steps(
     organized: NDArray[np.float32],
     capture: Capture,
     log: StepLog,
+    *,
+    on_support: bool = True,
 ) -> tuple[list[SeamCurve], int]:
     """Refinement on the full-resolution points near each seam, the narrow gaps and steps only full
-    resolution shows, and the view clip; with how many full-resolution points were read."""
+    resolution shows, and the view clip; with how many full-resolution points were read. ``on_support``:
+    whether the parts stand on a support (else the refined folds are named by how their faces turn alone)."""
     from perception.fine.corners import join_corners
     from perception.fine.gaps import inner_gap_seams, over_groove
     from perception.fine.merge import merge_collinear
     from perception.fine.refine import refine_seams
     from perception.fine.steps import step_seams
-    from perception.fine.trace import beside_groove, trace_grooves
+    from perception.fine.trace import beside_groove, shallow_as_grooves, trace_grooves
     from perception.fine.visibility import clip_to_view
 
     noise_full = _full(noise, surf.factor)
@@ -217,6 +221,8 @@ def _full_resolution_steps(
         gaps_job = pool.submit(inner_gaps) if pool is not None else None
         with log.step("refine"):
             curves, _ = refine_seams(curves, organized, capture.intrinsics, surf, noise_full, read=read, pool=pool)
+            if not on_support:
+                curves = shallow_as_grooves(curves)
         with log.step("inner_gaps"):  # with threads, the time waited for them past the refinement
             curves += gaps_job.result() if gaps_job is not None else inner_gaps()
     with log.step("steps"):

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
 from perception.evaluate import point_to_polyline_distance, resample_polyline
+from perception.fine.folds import SHALLOW_TURN_RAD
 from perception.fine.refine import near_points
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve
 from perception.fits import median
@@ -96,6 +97,20 @@ def _join_overlapping(seams: list[SeamCurve], noise: NoiseModel, tp: TraceParams
             if len(pb) >= 2 and _length(pb) >= tp.min_length_m:
                 kept.append(_curved(b, pb) if trimmed else b)
     return [s for s in seams if s.joint != "v_groove"] + kept
+
+
+def shallow_as_grooves(curves: list[SeamCurve]) -> list[SeamCurve]:
+    """With no support (a cloud of the part alone), each fold whose faces, as refined beside the seam, turn by
+    under :data:`perception.fine.folds.SHALLOW_TURN_RAD` named a groove: the joint-type rule on the better
+    estimate of the faces (a fold named from two segmented fragments of a groove's sides, one of them tilted,
+    turns by more). Not one beside a groove (:func:`beside_groove`): that is the groove's own bevel edge."""
+    grooves = [c for c in curves if c.joint == "v_groove"]
+    out = []
+    for c in curves:
+        turn = np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", c.normals_a, c.normals_b)), 0.0, 1.0))
+        shallow = c.joint in ("fillet", "inside_corner", "lap") and float(median(turn)) < SHALLOW_TURN_RAD
+        out.append(replace(c, joint="v_groove") if shallow and not beside_groove(c, grooves) else c)
+    return out
 
 
 def beside_groove(seam: SeamCurve, grooves: list[SeamCurve], *, share: float = 0.8) -> bool:

@@ -7,7 +7,7 @@ import pytest
 
 from perception.capture import CameraIntrinsics
 from perception.evaluate import point_to_polyline_distance
-from perception.fine.trace import TraceParams, beside_groove, trace_grooves
+from perception.fine.trace import TraceParams, beside_groove, shallow_as_grooves, trace_grooves
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve
 
 from .scenes import rendered, work
@@ -209,3 +209,20 @@ def test_a_fold_or_step_along_a_groove_within_its_slice_is_the_grooves_own() -> 
     assert not beside_groove(seam([0.03, 0.015, 0.5], [0.055, 0.015, 0.5]), [groove])
     assert not beside_groove(seam([0.05, -0.02, 0.5], [0.05, 0.02, 0.5], "fillet"), [groove])
     assert not beside_groove(seam([-0.01, 0.005, 0.5], [0.12, 0.005, 0.5]), [groove])
+
+
+def test_with_no_support_a_fold_whose_refined_faces_turn_shallow_is_named_a_groove() -> None:
+    def fold(joint: str, turn_deg: float, y0: float, y1: float, x: float = 0.0) -> SeamCurve:
+        h = np.radians(turn_deg) / 2.0
+        na, nb = np.array([np.sin(h), 0.0, -np.cos(h)]), np.array([-np.sin(h), 0.0, -np.cos(h)])
+        pts = np.array([[x, y0, 0.5], [x, y1, 0.5]])
+        return SeamCurve("linear", joint, pts, np.tile(na, (2, 1)), np.tile(nb, (2, 1)), (1, 2), 100, 0.0002)
+
+    groove = fold("v_groove", 50.0, 0.0, 0.06)
+    shallow = fold("fillet", 64.0, 0.07, 0.11)  # a 116-degree valley named from two tilted fragments
+    square = fold("inside_corner", 90.0, 0.07, 0.11, x=0.05)
+    bevel_edge = fold("lap", 55.0, 0.01, 0.05, x=0.004)  # along the groove, 4 mm beside its bottom
+    given = [groove, shallow, square, bevel_edge]
+    out = shallow_as_grooves(given)
+    assert [c.joint for c in out] == ["v_groove", "v_groove", "inside_corner", "lap"]
+    assert all(np.array_equal(a.points, b.points) for a, b in zip(out, given, strict=True))
