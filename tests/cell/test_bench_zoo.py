@@ -86,8 +86,8 @@ def test_the_table_has_a_row_per_family_and_one_overall(
     out = capsys.readouterr().out
     assert "zoo, dev split: 3 captures in 12 s" in " ".join(out.split())
     rows = {c[0]: c[1:] for c in ([x.strip() for x in line.split("│")[1:-1]] for line in out.splitlines()) if c}
-    #               captures passed GT found recall false reported split unseen no-seam errors over RMSE p95 max
-    assert rows["tee"][:9] == ["2", "1", "4", "3", "0.750", "1", "4", "0", "0"]
-    assert rows["pipe"][:11] == ["1", "0", "1", "0", "0.000", "0", "0", "0", "0", "1", "0"]
-    assert rows["pipe"][12:15] == ["-", "-", "-"]  # no point errors: a dash, not zero
+    #      captures passed GT found recall false reported split unseen joint-named no-seam errors over RMSE p95 max
+    assert rows["tee"][:10] == ["2", "1", "4", "3", "0.750", "1", "4", "0", "0", "0/3"]
+    assert rows["pipe"][:12] == ["1", "0", "1", "0", "0.000", "0", "0", "0", "0", "0/0", "1", "0"]
+    assert rows["pipe"][13:16] == ["-", "-", "-"]  # no point errors: a dash, not zero
     assert rows["overall"][:4] == ["3", "1", "5", "3"] and rows["overall"][-2:] == ["1.500", "2.400"]

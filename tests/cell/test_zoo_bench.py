@@ -105,7 +105,8 @@ def test_errors_are_measured_to_the_whole_seam_and_the_stretch_beyond_the_seen_r
     class Found:
         def __init__(self, *paths: np.ndarray) -> None:
             paths = tuple(resample_polyline(p, 0.005) for p in paths)  # path points every 5 mm, as detect's
-            self.seams = [type("S", (), {"points": p if X is None else transform_points(X, p)})() for p in paths]
+            self.seams = [type("S", (), {"points": p if X is None else transform_points(X, p), "joint": "fillet"})()
+                          for p in paths]  # fmt: skip
 
     def score(*paths: np.ndarray) -> CaptureScore:
         monkeypatch.setattr(detect_mod, "detect", lambda *_a, **_k: Found(*paths, *others))
@@ -113,6 +114,7 @@ def test_errors_are_measured_to_the_whole_seam_and_the_stretch_beyond_the_seen_r
 
     exact = score(seen)
     assert exact.found == 3 and exact.false_seams == 0 and exact.max_mm < 1e-6 and exact.overreach_mm == 0.0
+    assert exact.joint_named == 3 and exact.misnamed_joints == []  # the ribs' seams are fillets
     # 15 mm on into the hidden stretch, along the weldment's seam: not an error in position, but overreach
     longer = np.vstack([seen[0] - 0.015 * u, seen[-1]])
     s = score(longer)
