@@ -50,6 +50,7 @@ class RunResult:
     points_cropped: int
     points_down: int
     error: str = ""
+    named: int = 0  # found seams whose every matched detection names the truth's joint
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -98,12 +99,14 @@ def run_once(scene: str, noise: str, capture: Capture, params: DetectParams, rep
             (lin if score.kind == "linear" else cur).append(dist)
     lr, lm = _pool(lin)
     cr, _ = _pool(cur)
+    named = sum(bool(sc.detected_ids) and all(result.seams[d].joint == gt[sc.index].joint for d in sc.detected_ids)
+                for sc in rep.seams if sc.found)  # fmt: skip
     pc = result.point_counts
     return RunResult(
         scene, noise, seed, params.method, params.crop, params.voxel_m * 1000, rep.n_truth, rep.n_found,
         len(rep.false_seams), rep.coverage, rep.rmse_m * 1000, rep.max_m * 1000, rep.p95_m * 1000, lr, lm, cr,
         statistics.median(times), statistics.median(fines), statistics.median(coarses),
-        pc.get("raw", 0), pc.get("cropped", 0), pc.get("downsampled", 0),
+        pc.get("raw", 0), pc.get("cropped", 0), pc.get("downsampled", 0), named=named,
     )  # fmt: skip
 
 

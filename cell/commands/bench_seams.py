@@ -120,11 +120,13 @@ def summary_lines(report: BenchReport, methods: list[str]) -> list[str]:
         found = sum(r.found for r in ref)
         truth = sum(r.truth for r in ref)
         false = sum(r.false for r in ref)
+        named = sum(r.named for r in ref)
         lin = [r.linear_rmse_mm for r in stereo if math.isfinite(r.linear_rmse_mm)]
         lin_max = [r.linear_max_mm for r in stereo if math.isfinite(r.linear_max_mm)]
         cur = [r.curved_rmse_mm for r in stereo if math.isfinite(r.curved_rmse_mm)]
         lines.append(
-            f"summary ({method}): {found}/{truth} seams found, {false} false; stereo linear RMSE worst "
+            f"summary ({method}): {found}/{truth} seams found, {false} false, {named}/{found} joints named right; "
+            f"stereo linear RMSE worst "
             f"{_f(max(lin) if lin else float('nan'))} mm, max {_f(max(lin_max) if lin_max else float('nan'))} mm; "
             f"curved RMSE {_f(max(cur) if cur else float('nan'))} mm"
         )

@@ -18,14 +18,14 @@ def row(scene: str, noise: str, method: str, *, crop: bool = True, **values: flo
          "raw": 1000, "cropped": 100} | values  # fmt: skip
     return RunResult(scene, noise, 1, method, crop, 3.0, int(v["truth"]), int(v["found"]), int(v["false"]), 1.0,
                      v["lin"], v["lin_max"], v["lin_max"], v["lin"], v["lin_max"], v["cur"], v["time"], v["fine"],
-                     0.1, int(v["raw"]), int(v["cropped"]), 50)  # fmt: skip
+                     0.1, int(v["raw"]), int(v["cropped"]), 50, named=int(v.get("named", v["found"])))  # fmt: skip
 
 
 def test_the_summary_pools_every_run_of_a_method_and_takes_the_worst_stereo_errors() -> None:
     report = BenchReport(
         table1=[
             row("t_joint", "stereo", "refined", lin=0.12, lin_max=0.25),
-            row("ribs", "stereo", "refined", found=9, truth=10, false=1, lin=0.185, lin_max=0.266, cur=0.05),
+            row("ribs", "stereo", "refined", found=9, truth=10, false=1, lin=0.185, lin_max=0.266, cur=0.05, named=8),
             row("ribs", "structured", "refined", lin=0.9, lin_max=2.0),  # not stereo: no part in the worst errors
             row("ribs", "stereo", "paper", lin=1.5, lin_max=3.0),  # the baseline has no summary of its own
         ],
@@ -36,15 +36,16 @@ def test_the_summary_pools_every_run_of_a_method_and_takes_the_worst_stereo_erro
         sweep=[],
     )
     assert bench_seams.summary_lines(report, ["refined", "paper"]) == [
-        "summary (refined): 13/14 seams found, 1 false; stereo linear RMSE worst 0.185 mm, max 0.266 mm; "
-        "curved RMSE 0.050 mm",
+        "summary (refined): 13/14 seams found, 1 false, 12/13 joints named right; stereo linear RMSE worst "
+        "0.185 mm, max 0.266 mm; curved RMSE 0.050 mm",
         "ribs (10 seams, 1280x720, stereo): median 0.800 s; crop removes 88.0% of the points; fine stage "
         "5.0x faster than --no-crop",
     ]
     # no stereo run with a linear seam: the worst errors are unknown, not zero
     only_structured = BenchReport([row("ribs", "structured", "surfaces", lin=NAN, lin_max=NAN)], [], [])
     assert bench_seams.summary_lines(only_structured, ["surfaces"]) == [
-        "summary (surfaces): 2/2 seams found, 0 false; stereo linear RMSE worst - mm, max - mm; curved RMSE - mm"
+        "summary (surfaces): 2/2 seams found, 0 false, 2/2 joints named right; stereo linear RMSE worst - mm, "
+        "max - mm; curved RMSE - mm"
     ]
 
 
