@@ -18,7 +18,7 @@ import numpy as np
 from perception.capture import Capture
 from perception.detect import DetectParams, detect
 from perception.errors import NoSeamFound
-from perception.evaluate import evaluate_seams
+from perception.evaluate import evaluate_seams, joint_names
 from perception.transforms import invert_X, transform_points
 
 NOISE_LEVELS = ("stereo", "structured")
@@ -99,8 +99,8 @@ def run_once(scene: str, noise: str, capture: Capture, params: DetectParams, rep
             (lin if score.kind == "linear" else cur).append(dist)
     lr, lm = _pool(lin)
     cr, _ = _pool(cur)
-    named = sum(bool(sc.detected_ids) and all(result.seams[d].joint == gt[sc.index].joint for d in sc.detected_ids)
-                for sc in rep.seams if sc.found)  # fmt: skip
+    found = [sc.found for sc in rep.seams]
+    named, _ = joint_names(rep.seams, found, [g.joint for g in gt], [s.joint for s in result.seams])
     pc = result.point_counts
     return RunResult(
         scene, noise, seed, params.method, params.crop, params.voxel_m * 1000, rep.n_truth, rep.n_found,

@@ -174,7 +174,7 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
     from perception.capture import load_capture
     from perception.detect import DetectParams, detect
     from perception.errors import NoSeamFound
-    from perception.evaluate import MATCH_TOL_M, evaluate_seams, point_to_polyline_distance
+    from perception.evaluate import MATCH_TOL_M, evaluate_seams, joint_names, point_to_polyline_distance
     from perception.transforms import invert_X, transform_points
 
     meta = json.loads((folder / "zoo.json").read_text())
@@ -196,6 +196,8 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
     rep = evaluate_seams(pts, gt, whole_camera=[whole[t["seam_index"]] for t in meta["truth"]])
     found = [s.found and s.coverage >= COVER_FOUND for s in rep.seams]
     m = _point_errors(rep.seams, meta["truth"], pts, whole)
+    truth_joints = [t["joint"] for t in meta["truth"]]
+    named, misnamed = joint_names(rep.seams, found, truth_joints, [s.joint for s in result.seams])
 
     # a seam assigned to no seen run but lying on a seam of the weldment is unseen, not false
     def on_weldment(d: int) -> bool:
@@ -216,7 +218,8 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
         time_s=dt,
         outcome="seams",
         missed_joints=[meta["truth"][s.index]["joint"] for s, f in zip(rep.seams, found, strict=True) if not f],
-        **_joint_names(rep.seams, found, meta["truth"], [s.joint for s in result.seams]),
+        joint_named=named,
+        misnamed_joints=misnamed,
         unseen_seams=len(unseen),
         overreach_mm=round(1000.0 * m.overreach_m, 1),
         rmse_seen_mm=float(np.sqrt(np.mean(es**2))) if es.size else nan,
@@ -226,23 +229,6 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
         point_incidence_rad=[round(float(x), 4) for x in m.incidence_rad],
     )
     return score, (result if keep_result else None)
-
-
-def _joint_names(seams: Any, found: list[bool], truth: list[dict[str, Any]],
-                 joints: list[str | None]) -> dict[str, Any]:  # fmt: skip
-    """How many found seams are named as their truth's joint by every detection assigned to them, and the others
-    ("fillet as v_groove")."""
-    named, misnamed = 0, []
-    for s, f in zip(seams, found, strict=True):
-        if not f:
-            continue
-        want = truth[s.index]["joint"]
-        got = sorted({str(joints[d]) for d in s.detected_ids})
-        if got == [want]:
-            named += 1
-        else:
-            misnamed.append(f"{want} as {'+'.join(got)}")
-    return {"joint_named": named, "misnamed_joints": misnamed}
 
 
 def _unscored(base: dict[str, Any], meta: dict[str, Any], dt: float, outcome: str, reason: str) -> CaptureScore:

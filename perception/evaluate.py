@@ -19,6 +19,7 @@ Matching (documented in docs/evaluation.md):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -161,6 +162,24 @@ def _match(pts: FloatArray, truth: tuple[GroundTruthSeam, ...] | list[GroundTrut
         i for i in range(len(truth)) if i != best and ok[i] and np.array_equal(whole_camera[i], whole_camera[best])
     ]  # fmt: skip
     return [best, *also], to_whole[best]
+
+
+def joint_names(seams: Sequence[SeamScore], found: Sequence[bool], truth_joints: Sequence[str | None],
+                joints: Sequence[str | None]) -> tuple[int, list[str]]:  # fmt: skip
+    """Of the ground-truth seams ``seams`` (:func:`evaluate_seams`' per-truth rows) that are ``found``, how many
+    every detection assigned to them names as the truth's joint (``truth_joints`` per truth seam, ``joints``
+    per detection), and the others ("fillet as v_groove"; "+" between the names of several pieces)."""
+    named, misnamed = 0, []
+    for s, f in zip(seams, found, strict=True):
+        if not f:
+            continue
+        want = str(truth_joints[s.index])
+        got = sorted({str(joints[d]) for d in s.detected_ids})
+        if got == [want]:
+            named += 1
+        else:
+            misnamed.append(f"{want} as {'+'.join(got)}")
+    return named, misnamed
 
 
 def evaluate_seams(

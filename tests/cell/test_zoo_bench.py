@@ -149,17 +149,3 @@ def test_a_detection_through_two_seen_runs_has_its_point_errors_counted_once() -
     # against the runs: 0.5 mm where a run is, up to 35 mm at the middle of the hidden stretch (0.115 m)
     assert m.errors_seen_mm.shape == (21,) and m.errors_seen_mm.max() == pytest.approx(np.hypot(30.0, 0.5), abs=1e-9)
     assert m.overreach_m == pytest.approx(0.064, abs=0.0015)  # the hidden stretch, more than 3 mm from a run
-
-
-def test_a_found_seam_is_named_right_only_when_every_detection_on_it_names_its_joint() -> None:
-    from types import SimpleNamespace
-
-    from cell.zoo_bench import _joint_names
-
-    truth = [{"joint": "fillet"}, {"joint": "inside_corner"}, {"joint": "lap"}, {"joint": "butt"}]
-    rows = [SimpleNamespace(index=0, detected_ids=(0,)), SimpleNamespace(index=1, detected_ids=(1, 2)),
-            SimpleNamespace(index=2, detected_ids=(3,)), SimpleNamespace(index=3, detected_ids=())]  # fmt: skip
-    joints = ["fillet", "inside_corner", "fillet", "fillet"]
-    # seam 1 is found in two pieces, one of them misnamed; seam 3 was not found: not counted either way
-    out = _joint_names(rows, [True, True, True, False], truth, joints)
-    assert out == {"joint_named": 1, "misnamed_joints": ["inside_corner as fillet+inside_corner", "lap as fillet"]}

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from perception.capture import GroundTruthSeam
-from perception.evaluate import evaluate_seams, point_to_polyline_distance, resample_polyline
+from perception.evaluate import evaluate_seams, joint_names, point_to_polyline_distance, resample_polyline
 
 
 def test_distance_to_a_polyline_is_to_its_nearest_segment_clamped_at_the_ends() -> None:
@@ -82,3 +82,15 @@ def test_a_seam_seen_in_two_runs_and_detected_whole_is_found_in_both_its_errors_
     assert report.n_points == 201 and report.rmse_m == pytest.approx(0.0005, abs=1e-12)
     # without the whole seams only the run nearer in median takes it
     assert evaluate_seams([along_whole], truth).n_found == 0
+
+
+def test_a_found_seam_is_named_right_only_when_every_detection_on_it_names_its_joint() -> None:
+    from types import SimpleNamespace
+
+    truth = ["fillet", "inside_corner", "lap", "butt"]
+    rows = [SimpleNamespace(index=0, detected_ids=(0,)), SimpleNamespace(index=1, detected_ids=(1, 2)),
+            SimpleNamespace(index=2, detected_ids=(3,)), SimpleNamespace(index=3, detected_ids=())]  # fmt: skip
+    joints = ["fillet", "inside_corner", "fillet", "fillet"]
+    # seam 1 is found in two pieces, one of them misnamed; seam 3 was not found: not counted either way
+    out = joint_names(rows, [True, True, True, False], truth, joints)
+    assert out == (1, ["inside_corner as fillet+inside_corner", "lap as fillet"])
