@@ -21,6 +21,7 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -255,7 +256,7 @@ def _full_resolution_steps(
 
 def _full(noise: NoiseModel, factor: int) -> NoiseModel:
     """The noise model at full resolution: the same depth noise, ``factor`` times finer sample spacing."""
-    return NoiseModel(noise.sigma_1m_m, noise.floor_m, noise.pixel_angle_rad / factor, noise.structure_1m_m)
+    return replace(noise, pixel_angle_rad=noise.pixel_angle_rad / factor)
 
 
 def _wide_folds(work: NDArray[np.float64], surf: SurfaceSet, noise: NoiseModel, support: frozenset[int],

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from perception.fine.folds import FoldParams, joint_type, line_coords
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, SurfaceSet
-from perception.fits import connected_components, median
+from perception.fits import connected_components, fit_plane, median
 
 
 @dataclass(frozen=True)
@@ -126,8 +126,7 @@ def wide_planes(q: FloatArray, tol_m: float, join_m: float, wp: WideFoldParams,
         if len(piece) < wp.min_points:
             left = np.setdiff1d(left, on)  # no face here: these points are spent
             continue
-        c = q[piece].mean(axis=0)
-        normal = np.linalg.eigh(np.cov((q[piece] - c).T))[1][:, 0]
+        c, normal, _ = fit_plane(q[piece])
         normal = -normal if float(normal @ c) > 0 else normal
         out.append(WidePlane(normal, -float(normal @ c), piece, c))
         left = np.setdiff1d(left, piece)
