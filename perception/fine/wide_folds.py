@@ -42,6 +42,10 @@ class WideFoldParams:
     min_length_m: float = 0.020
     parallel_rad: float = float(np.radians(10.0))  # candidates this parallel and within the rounding are one
 
+    def reach_m(self, noise: NoiseModel, z: float) -> float:
+        """The corner's rounding at range ``z``: :attr:`reach_spacings` of the work image's sample spacing."""
+        return self.reach_spacings * float(noise.spacing_m(z))
+
 
 @dataclass(frozen=True)
 class WidePlane:
@@ -81,7 +85,7 @@ def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: N
     tol = wp.tol_sigma * sigma_wide
     planes = wide_planes(q, tol, 4.0 * spacing, wp, rng)
     up = surfaces.surfaces[min(support)].normal
-    reach = wp.reach_spacings * float(noise.spacing_m(z))
+    reach = wp.reach_m(noise, z)
     cands = []
     for i, a in enumerate(planes):
         for b in planes[i + 1 :]:
@@ -216,7 +220,7 @@ def in_place_of_along(curves: list[SeamCurve], wide: list[SeamCurve], noise: Noi
         return curves
     wp = WideFoldParams()
     z = float(median(np.concatenate([c.points[:, 2] for c in wide])))
-    reach = wp.reach_spacings * float(noise.spacing_m(z))
+    reach = wp.reach_m(noise, z)
     kept = [c for c in curves if not any(runs_along(c.points, w.points, reach, wp.parallel_rad) for w in wide)]
     return kept + wide
 
