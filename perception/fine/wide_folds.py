@@ -208,9 +208,20 @@ def runs_along(curve: FloatArray, other: FloatArray, reach: float, parallel_rad:
     if lu < 1e-9 or lv < 1e-9 or abs(float(u @ v)) < np.cos(parallel_rad) * lu * lv:
         return False
     v = v / lv
-    d = curve[len(curve) // 2] - other[0]
+    d = _middle(curve) - other[0]
     t = float(d @ v)
     return 0.0 <= t <= lv and float(np.linalg.norm(d - t * v)) < reach
+
+
+def _middle(curve: FloatArray) -> FloatArray:
+    """The point halfway along the (N, 3) polyline ``curve`` (by length: of a segment, its midpoint, not its
+    second point)."""
+    step = np.linalg.norm(np.diff(curve, axis=0), axis=1)
+    along = np.concatenate([[0.0], np.cumsum(step)])
+    half = 0.5 * float(along[-1])
+    k = min(int(np.searchsorted(along, half, side="right")) - 1, len(curve) - 2)
+    f = (half - along[k]) / max(float(step[k]), 1e-12)
+    return np.asarray(curve[k] + f * (curve[k + 1] - curve[k]))
 
 
 def in_place_of_along(curves: list[SeamCurve], wide: list[SeamCurve], noise: NoiseModel) -> list[SeamCurve]:

@@ -83,6 +83,13 @@ def test_runs_along_needs_direction_nearness_and_overlap() -> None:
     assert not runs_along(np.array([[0.02, 0.02, 1.0], [0.06, 0.02, 1.0]]), other, 0.01, np.radians(10.0))
     assert not runs_along(np.array([[0.02, 0.0, 1.0], [0.02, 0.04, 1.0]]), other, 0.01, np.radians(10.0))
     assert not runs_along(np.array([[0.15, 0.0, 1.0], [0.19, 0.0, 1.0]]), other, 0.01, np.radians(10.0))
+    # a segment longer than ``other`` by a few millimetres at each end, its middle at ``other``'s: it runs
+    # along it (its middle is what counts, not its second point, which lies past ``other``'s end)
+    assert runs_along(np.array([[-0.004, 0.001, 1.0], [0.104, 0.001, 1.0]]), other, 0.01, np.radians(10.0))
+    # a polyline's middle is halfway along its length, not its middle vertex
+    bent = np.array([[0.0, 0.002, 1.0], [0.01, 0.002, 1.0], [0.02, 0.002, 1.0], [0.12, 0.002, 1.0]])
+    assert not runs_along(bent, np.array([[0.0, 0.0, 1.0], [0.05, 0.0, 1.0]]), 0.01, np.radians(10.0))
+    assert runs_along(bent, np.array([[0.03, 0.0, 1.0], [0.09, 0.0, 1.0]]), 0.01, np.radians(10.0))
 
 
 def _plane(x: np.ndarray) -> WidePlane:
