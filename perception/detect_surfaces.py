@@ -64,13 +64,14 @@ def detect_surfaces(
     log.counts["work"] = int(np.isfinite(work[..., 2]).sum())
     curves, surf, noise, support, skip, pairs = _work_resolution_steps(work, factor, organized, capture, log,
                                                                        aim=p.unprompted == "aim")  # fmt: skip
+    proposed = list(curves)  # the candidates before the refinement: they confirm a wide fold along them
     with log.step("wide_folds"):
         wide = _wide_folds(work, surf, noise, support, skip)
     log.counts["wide_folds"] = len(wide)
     t_coarse = time.perf_counter() - t0
     curves, used = _full_resolution_steps(curves, surf, noise, skip, pairs, work, organized, capture, log,
                                           on_support=bool(support))  # fmt: skip
-    curves = in_place_of_along(curves, wide, noise)
+    curves = in_place_of_along(curves, wide, noise, proposed=proposed)
     t_fine = time.perf_counter() - t0 - t_coarse
     if not curves:
         raise NoSeamFound(
@@ -133,7 +134,7 @@ def _work_resolution_steps(
     from perception.fine.gaps import gap_seams
     from perception.fine.grooves import groove_seams
     from perception.fine.noise import estimate_noise, local_planes
-    from perception.fine.support import find_support
+    from perception.fine.support import find_support, on_table
     from perception.fine.surfaces import segment_surfaces
     from perception.fine.workpiece import prompted_labels, workpiece_labels
 
@@ -148,17 +149,21 @@ def _work_resolution_steps(
         # seen from in front each have every point on their camera side, and the largest is often a wall)
         prompted = prompted_labels(capture.prompts_px, surf)
         support = find_support(work, surf, noise, prompted=prompted)
+        # and the surfaces that lie on the table where the sensor bent it or fitted a strip of it at a tilt (the
+        # wide planes, fitted on the points off the support's own pieces, leave out the table seen again
+        # themselves: perception.fine.wide_folds)
+        table = support | on_table(work, surf, noise, support, prompted=prompted)
     with log.step("adjacency"):
         pairs = adjacent_pairs(surf, noise)
     log.counts["pairs"] = len(pairs)
     with log.step("workpiece"):
-        workpiece = workpiece_labels(work, surf, pairs, noise, prompted=prompted, support=support, aim=aim)
-        # never a seam's face: the support, and with prompts every surface not joined to a prompted one (the
+        workpiece = workpiece_labels(work, surf, pairs, noise, prompted=prompted, support=table, aim=aim)
+        # never a seam's face: the table, and with prompts every surface not joined to a prompted one (the
         # workpiece never holds a support surface: it is neither started from nor reached through)
-        skip = support if workpiece is None else frozenset(range(len(surf.surfaces))) - workpiece
+        skip = table if workpiece is None else frozenset(range(len(surf.surfaces))) - workpiece
     log.counts["workpiece"] = len(surf.surfaces) if workpiece is None else len(workpiece)
     with log.step("folds"):
-        curves = [c for c in fold_seams(work, surf, pairs, noise, support=support) if not set(c.surfaces) & skip]
+        curves = [c for c in fold_seams(work, surf, pairs, noise, support=table) if not set(c.surfaces) & skip]
     with log.step("gaps"):
         curves += gap_seams(work, surf, pairs, noise, support=skip)
     with log.step("grooves"):

@@ -31,6 +31,7 @@ BEHIND_SIGMA = 4.0  # a point more than this many sigma (and the flatness) behin
 CARRY_SHARE = 0.5  # at least this share of the points standing off a support lies over its outline
 FOOTPRINT_GROW_M = 0.006  # an outline (the convex hull of points dropped onto a plane) grown by this much
 CONTACT_M = 0.02  # or what stands off it touches it along this much (a part standing on it seen from one side)
+TABLE_AROUND_M = 0.03  # a surface lies on the table when it lies on the plane of the table's points this near it
 
 
 def find_support(
@@ -70,6 +71,47 @@ def find_support(
     if not qualify:
         return frozenset()
     return qualify[max(unclicked or qualify, key=lambda k: surfaces.surfaces[k].n_points)]
+
+
+def on_table(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, support: frozenset[int], *,
+             prompted: frozenset[int] = frozenset()) -> frozenset[int]:  # fmt: skip
+    """The surfaces besides the ``support`` (:func:`find_support`) that are the table seen again: their points
+    lie on the plane of the support's points around them (within TABLE_AROUND_M) as closely as those points do
+    (their median distance within the larger of the noise and the table's own spread there, nine in ten within
+    2.5 times that), whatever their own plane says. A few scan lines of a LiDAR's table fit a plane at any tilt
+    about them, and where the sensor bends the table its pieces leave the support's plane: without this, two
+    such strips a few millimetres apart on their tilted planes pass for a lap. A plate lying on the table is
+    its thickness above it; a surface the operator clicked is the workpiece."""
+    from scipy.spatial import cKDTree
+
+    from perception.fits import fit_plane
+
+    if not support:
+        return frozenset()
+    flat = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    lab = surfaces.labels.reshape(-1)
+    table_idx = np.flatnonzero(np.isin(lab, sorted(support)) & np.isfinite(flat[:, 2]))
+    table = flat[table_idx[:: max(1, len(table_idx) // 40000)]]
+    if len(table) < 3:
+        return frozenset()
+    tree = cKDTree(table)
+    out = set()
+    for s in surfaces.surfaces:
+        if s.label in support or s.label in prompted:
+            continue
+        own = np.flatnonzero(lab == s.label)
+        x = flat[own[:: max(1, len(own) // 200)]]
+        x = x[np.isfinite(x[:, 2])]
+        near = tree.query_ball_point(x, TABLE_AROUND_M)
+        around = np.unique(np.concatenate([np.asarray(k, dtype=np.int64) for k in near]))
+        if len(x) < 3 or len(around) < 3 * len(x):
+            continue  # the table is not all round it
+        c, n, _ = fit_plane(table[around])
+        res = np.abs((x - c) @ n)
+        spread = max(float(noise.sigma_m(s.z_m)), 1.4826 * float(np.median(np.abs((table[around] - c) @ n))))
+        if float(np.median(res)) <= spread and float(np.percentile(res, 90)) <= 2.5 * spread:
+            out.add(s.label)
+    return frozenset(out)
 
 
 def _off_tolerance(noise: NoiseModel, z: FloatArray | float) -> FloatArray:

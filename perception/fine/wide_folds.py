@@ -4,17 +4,23 @@ A swept LiDAR draws each face in layers of scan lines a few millimetres apart an
 20-40 mm; seen through its range image the faces break into fragments a few dozen pixels wide, and their folds
 land inside the rounding, 10-20 mm off the corner, or nowhere. The measured structured error (the noise model's
 ``structure_1m_m``, :func:`perception.fine.noise.structured_error`) says when a capture is such a one: when it
-is twice the noise model's own sigma or more (2.1-2.8 on thillRobot's plate scans; 0.1-0.3 on stereo, 0.9 on
-the table tee's scan, whose corners the view's surfaces place) and parts stand on a table, the faces are found
-again as wide planes, fitted within 4 sigma_wide (the noise seen at the scale of a face, sqrt(sigma^2 +
-structure^2)) to the points off the support, one after another (RANSAC, each plane its largest connected
-piece). Two of them that turn by a fold's angle and meet concavely (each one's points near their line lie on
-the camera side of the other, or on it: not behind it, as a convex edge's do) give a seam along their
-intersection where both have points within the corner's rounding of it, each reaching well beyond the
+is twice the noise model's own sigma or more (2.1-2.8 on thillRobot's plate scans; 0.1-0.56 on the zoo's stereo
+model) and parts stand on a table, the faces are found again as wide planes, fitted within 4 sigma_wide (the
+noise seen at the scale of a face, sqrt(sigma^2 + structure^2)) to the points off the support, one after
+another (RANSAC, each plane its largest connected piece). A wide plane that lies on the table around it is the
+table where the sensor bent it away from the support's pieces (its folds with what stands on the table are the
+table's junctions). Two of them that turn by a fold's angle and meet concavely (each one's points near their
+line lie on the camera side of the other, or on it: not behind it, as a convex edge's do) give a seam along
+their intersection where both have points within the corner's rounding of it, each reaching well beyond the
 rounding (a strip fitted across the rounding itself is no face). Parallel candidates within the rounding of
 each other and overlapping are one seam: the strongest's, lengthened over the others' spans (a face standing
 on a plate lying on the table meets both planes: the plate's, nearer, is the fold; a face the sensor bends
 comes out as pieces, each with its stretch of the one fold).
+
+Between 0.6 and twice the noise (thillRobot's table tees, 0.73-0.96: a LiDAR at a finer pitch, whose corners
+the view's surfaces place, but whose few points near a corner come and go from one sampling to the next; and
+a structured-light camera's bent panels, 1.1-1.5, which wide planes cut into facets) a wide fold only confirms
+a fold the view's surfaces proposed along it (:func:`in_place_of_along`).
 """
 
 from __future__ import annotations
@@ -31,7 +37,8 @@ from perception.fits import connected_components, fit_plane, median
 
 @dataclass(frozen=True)
 class WideFoldParams:
-    min_structure: float = 2.0  # the step runs when the structured error is this many times the noise or more
+    min_structure: float = 2.0  # wide folds stand alone when the structured error is this many times the noise
+    confirm_structure: float = 0.6  # from this many times, they only confirm folds the view's surfaces proposed
     tol_sigma: float = 4.0  # a point within this many sigma_wide of a wide plane lies on it
     reach_spacings: float = 10.0  # the corner's rounding: support within this many sample spacings of the line
     min_points: int = 60  # a wide plane holds at least this many of the sampled points
@@ -68,7 +75,7 @@ def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: N
     them into facets."""
     wp = params or WideFoldParams()
     structure_1m = noise.structure_1m_m
-    if not support or structure_1m < wp.min_structure * noise.sigma_1m_m:
+    if not support or structure_1m < wp.confirm_structure * noise.sigma_1m_m:
         return []
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     lab = surfaces.labels.reshape(-1)
@@ -86,6 +93,8 @@ def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: N
     planes = wide_planes(q, tol, 4.0 * spacing, wp, rng)
     up = surfaces.surfaces[min(support)].normal
     reach = wp.reach_m(noise, z)
+    table = np.flatnonzero(np.isfinite(p[:, 2]) & np.isin(lab, sorted(support)))
+    planes = _off_table(planes, q, p[table[:: max(1, len(table) // wp.sample)]], up, tol, 2.0 * reach, wp)
     cands = []
     for i, a in enumerate(planes):
         for b in planes[i + 1 :]:
@@ -134,6 +143,35 @@ def wide_planes(q: FloatArray, tol_m: float, join_m: float, wp: WideFoldParams,
         normal = -normal if float(normal @ c) > 0 else normal
         out.append(WidePlane(normal, -float(normal @ c), piece, c))
         left = np.setdiff1d(left, piece)
+    return out
+
+
+def _off_table(planes: list[WidePlane], q: FloatArray, table: FloatArray, up: FloatArray, tol: float,
+               radius: float, wp: WideFoldParams) -> list[WidePlane]:  # fmt: skip
+    """``planes`` less those that are the table seen again: parallel to the support (within
+    :attr:`WideFoldParams.parallel_rad` of its normal ``up``) and with their points within ``tol`` of the
+    plane of the support's points ``table`` around them (within ``radius``). The sensor bends the table
+    across the scene, so that the support's segmented pieces leave out stretches of it, which the wide
+    planes find again; their folds with what stands on the table are its junctions with the table. A plate
+    lying on the table is its thickness above the table beside it."""
+    from scipy.spatial import cKDTree
+
+    if len(table) < wp.min_points:
+        return planes
+    tree = cKDTree(table)
+    out = []
+    for pl in planes:
+        if abs(float(pl.normal @ up)) < np.cos(wp.parallel_rad):
+            out.append(pl)
+            continue
+        x = q[pl.members[:: max(1, len(pl.members) // 200)]]
+        near = np.unique(np.concatenate(tree.query_ball_point(x, radius)).astype(np.int64))
+        if len(near) < wp.min_points:
+            out.append(pl)  # no table around it to tell
+            continue
+        c, n, _ = fit_plane(table[near])
+        if float(median(np.abs((x - c) @ n))) > tol:
+            out.append(pl)
     return out
 
 
@@ -224,16 +262,39 @@ def _middle(curve: FloatArray) -> FloatArray:
     return np.asarray(curve[k] + f * (curve[k + 1] - curve[k]))
 
 
-def in_place_of_along(curves: list[SeamCurve], wide: list[SeamCurve], noise: NoiseModel) -> list[SeamCurve]:
-    """``curves`` with the wide planes' folds ``wide``, each in place of the seams that run along it within the
-    corner's rounding (the view's fragments place a rounded corner's fold inside the rounding, 10-20 mm off)."""
+def in_place_of_along(curves: list[SeamCurve], wide: list[SeamCurve], noise: NoiseModel, *,
+                      proposed: list[SeamCurve] | tuple[SeamCurve, ...] = ()) -> list[SeamCurve]:  # fmt: skip
+    """``curves`` with the wide planes' folds ``wide``. Where the structured error is
+    :attr:`WideFoldParams.min_structure` times the noise or more, each wide fold stands in place of the seams
+    that run along it within the corner's rounding (the view's fragments place a rounded corner's fold inside
+    the rounding, 10-20 mm off). Below that (from :attr:`WideFoldParams.confirm_structure`: a LiDAR scanning
+    at a fine pitch, whose corners the view's surfaces place but whose sparse points near a corner come and go
+    from one sampling to the next), a wide fold only confirms a fold the view's surfaces ``proposed`` along it
+    (a candidate before the refinement): the longest refined seam along it is lengthened over its span (the
+    others along it are pieces of the same seam), and where the refinement held none, the wide fold is the
+    seam. A wide fold nothing proposed (facets of a bent panel, which a structured-light camera's bending
+    error also lets through) is dropped."""
     if not wide:
         return curves
     wp = WideFoldParams()
     z = float(median(np.concatenate([c.points[:, 2] for c in wide])))
     reach = wp.reach_m(noise, z)
-    kept = [c for c in curves if not any(runs_along(c.points, w.points, reach, wp.parallel_rad) for w in wide)]
-    return kept + wide
+    if noise.structure_1m_m >= wp.min_structure * noise.sigma_1m_m:
+        kept = [c for c in curves if not any(runs_along(c.points, w.points, reach, wp.parallel_rad) for w in wide)]
+        return kept + wide
+    out = list(curves)
+    for w in wide:
+        if not any(_along(p.points[[0, -1]], w.points, reach, wp.parallel_rad) for p in proposed):
+            continue
+        along = [i for i, c in enumerate(out) if c.kind == "linear" and runs_along(c.points, w.points, reach,
+                                                                                   wp.parallel_rad)]  # fmt: skip
+        if not along:
+            out.append(w)
+            continue
+        longest = max(along, key=lambda i: float(np.linalg.norm(out[i].points[-1] - out[i].points[0])))
+        out[longest] = _lengthened(out[longest], w.points)
+        out = [c for i, c in enumerate(out) if i == longest or i not in along]
+    return out
 
 
 def _majority(labels: NDArray[np.int32]) -> int:

@@ -185,11 +185,15 @@ def test_the_y_tube_joint_gives_the_saddle_at_the_bottom_of_its_v() -> None:
 
 def test_the_lidar_tee_on_its_table_gives_its_fillet() -> None:
     # thillRobot's tee on a table (a LiDAR scan, 1.9 mm between samples along a line, its lines 5-8 mm apart
-    # on the tube): the tube's fillet on the cross-tube top, a median 0.7 mm from the reference's line
-    # (independent plane fits, 44 mm), covering 60% of it within the reference's 10 mm, and no seam
+    # on the tube): the tube's fillet on the cross-tube top, a median 0.6 mm from the reference's line
+    # (independent plane fits, 44 mm), covering all of it within the reference's 10 mm, and no seam
     # elsewhere. The table's piece of the cloud is found by joining each point to its nearest: at three
     # in-line spacings the tube was a piece per scan line, clear of the table, and the fillet was dropped.
-    # Under 2% dropouts it passes in about half the draws (`weldcell bench real --draws 8`)
+    # With 2% of the points dropped, the refinement alone held a piece of the fillet or none (no seam in
+    # draws 4 and 7 of `weldcell bench real --draws 8`, 15 mm in draw 5): the wide planes' fold along the
+    # fold the view proposed (fine.wide_folds, the structured error 0.85 sigma) confirms it and gives its
+    # extent; and draw 2's "lap" 491 mm away, between two strips of the table fitted at a 31-33 degree tilt
+    # 5 mm apart, is gone with the strips taken for the table (fine.support.on_table)
     import json
 
     from perception.evaluate import point_to_polyline_distance, resample_polyline
@@ -200,11 +204,14 @@ def test_the_lidar_tee_on_its_table_gives_its_fillet() -> None:
         pytest.skip("the tee's reference is missing")
     reference = json.loads(ref_file.read_text(encoding="utf-8"))
     ref, tolerance = np.asarray(reference["seams"][0]["points"]), float(reference["tolerance_m"])
-    (seam,) = detect_cloud(read_point_cloud(REALDATA / rel), DetectParams()).seams
-    assert seam.joint == "fillet"
-    assert float(np.median(point_to_polyline_distance(np.asarray(seam.points), ref))) < 0.001
+    cloud = read_point_cloud(REALDATA / rel)
     along = resample_polyline(ref, 0.001)
-    assert float(np.mean(point_to_polyline_distance(along, np.asarray(seam.points)) <= tolerance)) >= 0.6
+    for draw in (None, 2, 4, 7):
+        pc = cloud if draw is None else cloud.subset(np.random.default_rng(draw).random(len(cloud.points)) >= 0.02)
+        (seam,) = detect_cloud(pc, DetectParams()).seams
+        assert seam.joint == "fillet", draw
+        assert float(np.median(point_to_polyline_distance(np.asarray(seam.points), ref))) < 0.0025, draw
+        assert float(np.mean(point_to_polyline_distance(along, np.asarray(seam.points)) <= tolerance)) >= 0.95, draw
 
 
 def test_a_lidar_tube_on_a_plate_gives_its_fillet_and_no_groove_on_the_table() -> None:

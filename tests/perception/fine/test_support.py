@@ -193,3 +193,34 @@ def test_mixed_points_behind_the_table_do_not_take_it_away() -> None:
     # (test_a_plate_with_a_lower_one_behind_it_is_not_the_support)
     p, surf, nm = _banded_table(0.0, stray_share=0.05)
     assert find_support(p, surf, nm) == frozenset({0})
+
+
+def test_a_strip_of_the_table_fitted_at_a_tilt_is_the_table_and_a_plate_on_it_is_not() -> None:
+    # a table at 0.8 m seen straight down with 0.3 mm of noise (0.8 mm pixels), the support (label 0); on it,
+    # a strip 8 pixels wide whose own plane was fitted tilted 30 degrees about its length (a few of a LiDAR's
+    # scan lines fit a plane at any tilt about them; their points lie on the table): label 1; a plate 6 mm
+    # thick lying on the table elsewhere: label 2; a strip like label 1 that the operator clicked: label 3
+    from perception.fine.support import on_table
+    from perception.fine.types import NoiseModel, Surface, SurfaceSet
+
+    rng = np.random.default_rng(0)
+    h, w = 200, 300
+    yy, xx = np.mgrid[0:h, 0:w]
+    strip = (yy >= 40) & (yy < 48) & (xx >= 50) & (xx < 150)
+    plate = (yy >= 100) & (yy < 160) & (xx >= 180) & (xx < 260)
+    clicked = (yy >= 150) & (yy < 158) & (xx >= 30) & (xx < 130)
+    z = np.where(plate, 0.794, 0.8) + rng.normal(0.0, 3e-4, (h, w))
+    p = np.dstack([(xx - w / 2) * 0.001 * z, (yy - h / 2) * 0.001 * z, z])
+    labels = np.select([strip, plate, clicked], [1, 2, 3], 0).astype(np.int32)
+    down = np.array([0.0, 0.0, -1.0])
+    tilted = np.array([0.0, np.sin(np.radians(30.0)), -np.cos(np.radians(30.0))])
+
+    def surface(label: int, normal: np.ndarray) -> Surface:
+        c = p[labels == label].mean(axis=0)
+        return Surface(label, "plane", normal, -float(normal @ c), 3e-4, int((labels == label).sum()), c, float(c[2]))
+
+    surf = SurfaceSet(labels, 1, (surface(0, down), surface(1, tilted), surface(2, down), surface(3, tilted)))
+    nm = NoiseModel(sigma_1m_m=3e-4 / 0.64, floor_m=5e-5, pixel_angle_rad=0.001)
+    assert on_table(p, surf, nm, frozenset({0}), prompted=frozenset({3})) == frozenset({1})
+    assert on_table(p, surf, nm, frozenset({0})) == frozenset({1, 3})
+    assert on_table(p, surf, nm, frozenset()) == frozenset()

@@ -18,6 +18,8 @@ from perception.fine.wide_folds import (
     _along,
     _fold,
     _lengthened,
+    _off_table,
+    in_place_of_along,
     runs_along,
     wide_fold_seams,
 )
@@ -146,3 +148,62 @@ def test_overlapping_folds_along_one_line_are_one_seam_lengthened_over_both() ->
     assert not _along(np.add(weak, [0.0, 0.03, 0.0]), strong, 0.022, wp.parallel_rad)
     turned = np.array([[0.08, 0.0, 0.5], [0.08 + 0.07 * np.cos(0.35), 0.07 * np.sin(0.35), 0.5]])
     assert not _along(turned, strong, 0.022, wp.parallel_rad)
+
+
+def _grid(x0: float, x1: float, y0: float, y1: float, z: float, step: float = 0.004) -> np.ndarray:
+    gx, gy = np.meshgrid(np.arange(x0, x1 + 1e-9, step), np.arange(y0, y1 + 1e-9, step))
+    return np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)])
+
+
+def test_a_wide_plane_on_the_table_around_it_is_the_table_and_a_plate_on_it_is_not() -> None:
+    # camera 0.5 m above a table (z = 0.5) that the sensor bends: the support's points around x < 0 lie on
+    # z = 0.5, around x > 0.2 on z = 0.503 (3 mm off the support's plane, where its segmented pieces stop).
+    # A wide plane found on the bent part is the table (its points on the table's plane around them); a plate
+    # lying on the table 9 mm thick is not, nor the face standing on it, nor a plane with no table around it
+    table = np.vstack([_grid(-0.3, -0.01, -0.1, 0.1, 0.5), _grid(0.2, 0.4, -0.1, 0.1, 0.503)])
+    up = np.array([0.0, 0.0, -1.0])
+    bent = _grid(0.25, 0.35, -0.05, 0.05, 0.503)
+    plate = _grid(-0.2, -0.1, -0.05, 0.05, 0.491)
+    face = np.column_stack([np.full(100, -0.1), np.repeat(np.linspace(-0.05, 0.05, 10), 10),
+                            np.tile(np.linspace(0.45, 0.49, 10), 10)])  # fmt: skip
+    alone = _grid(0.8, 0.9, -0.05, 0.05, 0.5)
+    q = np.vstack([bent, plate, face, alone])
+    planes, start = [], 0
+    for x in (bent, plate, face, alone):
+        pl = _plane(x)
+        planes.append(WidePlane(pl.normal, pl.offset, pl.members + start, pl.centroid))
+        start += len(x)
+    kept = _off_table(planes, q, table, up, 0.004, 0.04, WideFoldParams())
+    assert kept == planes[1:]
+
+
+def _curve(points: list[list[float]], joint: str = "fillet") -> SeamCurve:
+    p = np.asarray(points, dtype=np.float64)
+    return SeamCurve("linear", joint, p, np.tile([0.0, 0.0, -1.0], (len(p), 1)), np.tile([0.0, -1.0, 0.0], (len(p), 1)),
+                     (1, 2), 100, 0.001)  # fmt: skip
+
+
+def test_below_twice_the_noise_a_wide_fold_only_confirms_a_proposed_fold() -> None:
+    from perception.fine.types import NoiseModel
+
+    # structured error 0.8 times the noise (a LiDAR at a fine pitch): the rounding at 0.5 m is 10 spacings of
+    # 1 mm. The wide fold runs 0-100 mm along x
+    nm = NoiseModel(sigma_1m_m=1e-3, floor_m=5e-5, pixel_angle_rad=0.002, structure_1m_m=8e-4)
+    wide = _curve([[0.0, 0.0, 0.5], [0.1, 0.0, 0.5]])
+    # a refined piece along it (20-50 mm, 1 mm beside it) and a shorter one (60-75 mm): the longer is lengthened
+    # over the wide fold's span on its own line, the other is a piece of the same seam
+    piece = _curve([[0.02, 0.001, 0.5], [0.05, 0.001, 0.5]])
+    short = _curve([[0.06, 0.001, 0.5], [0.075, 0.001, 0.5]])
+    elsewhere = _curve([[0.0, 0.05, 0.5], [0.1, 0.05, 0.5]])
+    proposed = [_curve([[0.03, 0.002, 0.5], [0.07, 0.002, 0.5]])]
+    out = in_place_of_along([piece, elsewhere, short], [wide], nm, proposed=proposed)
+    assert len(out) == 2 and out[1] is elsewhere
+    assert np.allclose(out[0].points, [[0.0, 0.001, 0.5], [0.1, 0.001, 0.5]], atol=1e-12)
+    # where the refinement held nothing along it, the wide fold is the seam
+    assert in_place_of_along([elsewhere], [wide], nm, proposed=proposed) == [elsewhere, wide]
+    # nothing the view's surfaces proposed lies along it (a proposal 30 mm beside it): it is dropped
+    aside = [_curve([[0.03, 0.03, 0.5], [0.07, 0.03, 0.5]])]
+    assert in_place_of_along([piece], [wide], nm, proposed=aside) == [piece]
+    # from twice the noise the wide fold stands alone, in place of the seams along it
+    lidar = NoiseModel(sigma_1m_m=1e-3, floor_m=5e-5, pixel_angle_rad=0.002, structure_1m_m=2.5e-3)
+    assert in_place_of_along([piece, elsewhere], [wide], lidar) == [elsewhere, wide]
