@@ -32,6 +32,7 @@ CARRY_SHARE = 0.5  # at least this share of the points standing off a support li
 FOOTPRINT_GROW_M = 0.006  # an outline (the convex hull of points dropped onto a plane) grown by this much
 CONTACT_M = 0.02  # or what stands off it touches it along this much (a part standing on it seen from one side)
 TABLE_AROUND_M = 0.03  # a surface lies on the table when it lies on the plane of the table's points this near it
+TABLE_SAMPLE = 6000  # ... of a sample of about this many of the table's points
 
 
 def find_support(
@@ -76,7 +77,8 @@ def find_support(
 def on_table(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, support: frozenset[int], *,
              prompted: frozenset[int] = frozenset()) -> frozenset[int]:  # fmt: skip
     """The surfaces besides the ``support`` (:func:`find_support`) that are the table seen again: their points
-    lie on the plane of the support's points around them (within TABLE_AROUND_M) as closely as those points do
+    lie on the plane of the support's points around them (the twelve nearest each, within TABLE_AROUND_M, for at
+    least half of the surface's points) as closely as those points do
     (their median distance within the larger of the noise and the table's own spread there, nine in ten within
     2.5 times that), whatever their own plane says. A few scan lines of a LiDAR's table fit a plane at any tilt
     about them, and where the sensor bends the table its pieces leave the support's plane: without this, two
@@ -88,24 +90,31 @@ def on_table(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseMod
 
     if not support:
         return frozenset()
-    flat = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    lab = surfaces.labels.reshape(-1)
-    table_idx = np.flatnonzero(np.isin(lab, sorted(support)) & np.isfinite(flat[:, 2]))
-    table = flat[table_idx[:: max(1, len(table_idx) // 40000)]]
+    from scipy.ndimage import find_objects
+
+    p = np.asarray(points, dtype=np.float64)
+    labels = surfaces.labels
+    is_table = np.zeros(len(surfaces.surfaces) + 1, dtype=bool)  # the last entry: label -1
+    is_table[sorted(support)] = True
+    table_idx = np.flatnonzero(is_table[labels.reshape(-1)])
+    table = p.reshape(-1, 3)[table_idx[:: max(1, len(table_idx) // TABLE_SAMPLE)]]
+    table = table[np.isfinite(table[:, 2])]
     if len(table) < 3:
         return frozenset()
     tree = cKDTree(table)
+    boxes = find_objects(labels + 1)  # each surface's bounding box: its pixels are looked for there alone
     out = set()
     for s in surfaces.surfaces:
-        if s.label in support or s.label in prompted:
+        if s.label in support or s.label in prompted or s.label >= len(boxes) or boxes[s.label] is None:
             continue
-        own = np.flatnonzero(lab == s.label)
-        x = flat[own[:: max(1, len(own) // 200)]]
+        box = boxes[s.label]
+        own = p[box][labels[box] == s.label]
+        x = own[:: max(1, len(own) // 48)]
         x = x[np.isfinite(x[:, 2])]
-        near = tree.query_ball_point(x, TABLE_AROUND_M)
-        around = np.unique(np.concatenate([np.asarray(k, dtype=np.int64) for k in near]))
-        if len(x) < 3 or len(around) < 3 * len(x):
-            continue  # the table is not all round it
+        d, near = tree.query(x, k=12, distance_upper_bound=TABLE_AROUND_M)
+        around = np.unique(near[np.isfinite(d)])
+        if len(x) < 3 or np.mean(np.isfinite(d[:, 0])) < 0.5 or len(around) < 20:
+            continue  # no table around it
         c, n, _ = fit_plane(table[around])
         res = np.abs((x - c) @ n)
         spread = max(float(noise.sigma_m(s.z_m)), 1.4826 * float(np.median(np.abs((table[around] - c) @ n))))
