@@ -18,6 +18,8 @@ top edge, seen between it and the table, fit no surface.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -77,29 +79,19 @@ def find_support(
 def on_table(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, support: frozenset[int], *,
              prompted: frozenset[int] = frozenset()) -> frozenset[int]:  # fmt: skip
     """The surfaces besides the ``support`` (:func:`find_support`) that are the table seen again: their points
-    lie on the plane of the support's points around them (the twelve nearest each, within TABLE_AROUND_M, for at
-    least half of the surface's points) as closely as those points do
+    lie on the plane of the support's points around them (:func:`table_around`) as closely as those points do
     (their median distance within the larger of the noise and the table's own spread there, nine in ten within
     2.5 times that), whatever their own plane says. A few scan lines of a LiDAR's table fit a plane at any tilt
     about them, and where the sensor bends the table its pieces leave the support's plane: without this, two
     such strips a few millimetres apart on their tilted planes pass for a lap. A plate lying on the table is
     its thickness above it; a surface the operator clicked is the workpiece."""
-    from scipy.spatial import cKDTree
-
-    from perception.fits import fit_plane
-
-    if not support:
-        return frozenset()
     from scipy.ndimage import find_objects
+    from scipy.spatial import cKDTree
 
     p = np.asarray(points, dtype=np.float64)
     labels = surfaces.labels
-    is_table = np.zeros(len(surfaces.surfaces) + 1, dtype=bool)  # the last entry: label -1
-    is_table[sorted(support)] = True
-    table_idx = np.flatnonzero(is_table[labels.reshape(-1)])
-    table = p.reshape(-1, 3)[table_idx[:: max(1, len(table_idx) // TABLE_SAMPLE)]]
-    table = table[np.isfinite(table[:, 2])]
-    if len(table) < 3:
+    table = table_sample(p, labels, support, TABLE_SAMPLE)
+    if not support or len(table) < 3:
         return frozenset()
     tree = cKDTree(table)
     boxes = find_objects(labels + 1)  # each surface's bounding box: its pixels are looked for there alone
@@ -111,16 +103,45 @@ def on_table(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseMod
         own = p[box][labels[box] == s.label]
         x = own[:: max(1, len(own) // 48)]
         x = x[np.isfinite(x[:, 2])]
-        d, near = tree.query(x, k=12, distance_upper_bound=TABLE_AROUND_M)
-        around = np.unique(near[np.isfinite(d)])
-        if len(x) < 3 or np.mean(np.isfinite(d[:, 0])) < 0.5 or len(around) < 20:
-            continue  # no table around it
-        c, n, _ = fit_plane(table[around])
+        local = table_around(tree, table, x, TABLE_AROUND_M)
+        if local is None:
+            continue
+        c, n, around = local
         res = np.abs((x - c) @ n)
-        spread = max(float(noise.sigma_m(s.z_m)), 1.4826 * float(np.median(np.abs((table[around] - c) @ n))))
+        spread = max(float(noise.sigma_m(s.z_m)), 1.4826 * float(np.median(np.abs((around - c) @ n))))
         if float(np.median(res)) <= spread and float(np.percentile(res, 90)) <= 2.5 * spread:
             out.add(s.label)
     return frozenset(out)
+
+
+def table_sample(points: NDArray[np.floating], labels: NDArray[np.int32], support: frozenset[int],
+                 size: int) -> FloatArray:  # fmt: skip
+    """About ``size`` of the valid points of the (h, w, 3) ``points`` whose ``labels`` are the support's, evenly
+    taken."""
+    is_table = np.zeros(int(labels.max(initial=-1)) + 2, dtype=bool)  # the last entry: label -1
+    is_table[sorted(support)] = True
+    idx = np.flatnonzero(is_table[labels.reshape(-1)])
+    q = np.asarray(points, dtype=np.float64).reshape(-1, 3)[idx[:: max(1, len(idx) // max(size, 1))]]
+    return q[np.isfinite(q[:, 2])]
+
+
+def table_around(tree: Any, table: FloatArray, x: FloatArray, radius_m: float) -> tuple[FloatArray, FloatArray,
+                                                                                        FloatArray] | None:  # fmt: skip
+    """The plane of the table's points ``table`` (indexed by the k-d ``tree``) around the (N, 3) points ``x``: the
+    twelve nearest each within ``radius_m``; its centroid and unit normal, and those table points. None when
+    fewer than half of ``x`` have a table point that near, or fewer than 20 table points are around them (the
+    table is not around them to tell)."""
+    from perception.fits import fit_plane
+
+    if len(x) < 3:
+        return None
+    d, near = tree.query(x, k=12, distance_upper_bound=radius_m)
+    found = np.isfinite(d)
+    around = table[np.unique(near[found])]
+    if np.mean(found[:, 0]) < 0.5 or len(around) < 20:
+        return None
+    c, n, _ = fit_plane(around)
+    return c, n, around
 
 
 def _off_tolerance(noise: NoiseModel, z: FloatArray | float) -> FloatArray:

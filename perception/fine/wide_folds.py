@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.fine.folds import FoldParams, joint_type, line_coords
+from perception.fine.support import table_around, table_sample
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, SurfaceSet
 from perception.fits import connected_components, fit_plane, median
 
@@ -93,8 +94,8 @@ def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: N
     planes = wide_planes(q, tol, 4.0 * spacing, wp, rng)
     up = surfaces.surfaces[min(support)].normal
     reach = wp.reach_m(noise, z)
-    table = np.flatnonzero(np.isfinite(p[:, 2]) & np.isin(lab, sorted(support)))
-    planes = _off_table(planes, q, p[table[:: max(1, len(table) // wp.sample)]], up, tol, 2.0 * reach, wp)
+    planes = _off_table(planes, q, table_sample(points, surfaces.labels, support, wp.sample), up, tol, 2.0 * reach,
+                        wp)  # fmt: skip
     cands = []
     for i, a in enumerate(planes):
         for b in planes[i + 1 :]:
@@ -150,10 +151,11 @@ def _off_table(planes: list[WidePlane], q: FloatArray, table: FloatArray, up: Fl
                radius: float, wp: WideFoldParams) -> list[WidePlane]:  # fmt: skip
     """``planes`` less those that are the table seen again: parallel to the support (within
     :attr:`WideFoldParams.parallel_rad` of its normal ``up``) and with their points within ``tol`` of the
-    plane of the support's points ``table`` around them (within ``radius``). The sensor bends the table
-    across the scene, so that the support's segmented pieces leave out stretches of it, which the wide
-    planes find again; their folds with what stands on the table are its junctions with the table. A plate
-    lying on the table is its thickness above the table beside it."""
+    plane of the support's points ``table`` around them (within ``radius``,
+    :func:`perception.fine.support.table_around`). The sensor bends the table across the scene, so that the
+    support's segmented pieces leave out stretches of it, which the wide planes find again; their folds with
+    what stands on the table are its junctions with the table. A plate lying on the table is its thickness
+    above the table beside it."""
     from scipy.spatial import cKDTree
 
     if len(table) < wp.min_points:
@@ -161,16 +163,11 @@ def _off_table(planes: list[WidePlane], q: FloatArray, table: FloatArray, up: Fl
     tree = cKDTree(table)
     out = []
     for pl in planes:
-        if abs(float(pl.normal @ up)) < np.cos(wp.parallel_rad):
-            out.append(pl)
-            continue
-        x = q[pl.members[:: max(1, len(pl.members) // 200)]]
-        near = np.unique(np.concatenate(tree.query_ball_point(x, radius)).astype(np.int64))
-        if len(near) < wp.min_points:
-            out.append(pl)  # no table around it to tell
-            continue
-        c, n, _ = fit_plane(table[near])
-        if float(median(np.abs((x - c) @ n))) > tol:
+        local = None
+        if abs(float(pl.normal @ up)) >= np.cos(wp.parallel_rad):
+            x = q[pl.members[:: max(1, len(pl.members) // 200)]]
+            local = table_around(tree, table, x, radius)
+        if local is None or float(median(np.abs((x - local[0]) @ local[1]))) > tol:
             out.append(pl)
     return out
 
