@@ -81,25 +81,34 @@ def on_table(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseMod
     """The surfaces besides the ``support`` (:func:`find_support`) that are the table seen again: their points
     lie on the plane of the support's points around them (:func:`table_around`) as closely as those points do
     (their median distance within the larger of the noise and the table's own spread there, nine in ten within
-    2.5 times that), whatever their own plane says. A few scan lines of a LiDAR's table fit a plane at any tilt
+    2.5 times that), whatever their own plane says (of the surfaces whose centre lies on the support's plane
+    within the support's own tolerances). A few scan lines of a LiDAR's table fit a plane at any tilt
     about them, and where the sensor bends the table its pieces leave the support's plane: without this, two
     such strips a few millimetres apart on their tilted planes pass for a lap. A plate lying on the table is
     its thickness above it; a surface the operator clicked is the workpiece."""
     from scipy.ndimage import find_objects
     from scipy.spatial import cKDTree
 
+    if not support:
+        return frozenset()
+    plane = surfaces.surfaces[max(sorted(support), key=lambda k: surfaces.surfaces[k].n_points)]  # the largest piece
+    # only a surface whose centre lies on the support's plane as the support's own test takes a point to (no
+    # further in front than the off tolerance, nor behind than the noise and the table's flatness allow)
+    near = [s for s in surfaces.surfaces if s.label not in support and s.label not in prompted
+            and -float(BEHIND_SIGMA * noise.sigma_m(s.z_m) + _flatness(noise, s.z_m))
+            <= float(plane.residual(s.centroid[None])[0]) <= float(_off_tolerance(noise, s.z_m))]  # fmt: skip
     p = np.asarray(points, dtype=np.float64)
     labels = surfaces.labels
-    table = table_sample(p, labels, support, TABLE_SAMPLE)
-    if not support or len(table) < 3:
+    table = table_sample(p, labels, support, TABLE_SAMPLE) if near else np.zeros((0, 3))
+    if len(table) < 3:
         return frozenset()
     tree = cKDTree(table)
     boxes = find_objects(labels + 1)  # each surface's bounding box: its pixels are looked for there alone
     out = set()
-    for s in surfaces.surfaces:
-        if s.label in support or s.label in prompted or s.label >= len(boxes) or boxes[s.label] is None:
+    for s in near:
+        box = boxes[s.label] if s.label < len(boxes) else None
+        if box is None:
             continue
-        box = boxes[s.label]
         own = p[box][labels[box] == s.label]
         x = own[:: max(1, len(own) // 48)]
         x = x[np.isfinite(x[:, 2])]
