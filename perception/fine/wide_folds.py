@@ -163,12 +163,12 @@ def _off_table(planes: list[WidePlane], q: FloatArray, table: FloatArray, up: Fl
     tree = cKDTree(table)
     out = []
     for pl in planes:
-        local = None
         if abs(float(pl.normal @ up)) >= np.cos(wp.parallel_rad):
             x = q[pl.members[:: max(1, len(pl.members) // 200)]]
             local = table_around(tree, table, x, radius)
-        if local is None or float(median(np.abs((x - local[0]) @ local[1]))) > tol:
-            out.append(pl)
+            if local is not None and float(median(np.abs((x - local[0]) @ local[1]))) <= tol:
+                continue  # the table seen again
+        out.append(pl)
     return out
 
 
