@@ -71,7 +71,7 @@ def detect_surfaces(
     t_coarse = time.perf_counter() - t0
     curves, used = _full_resolution_steps(curves, surf, noise, skip, pairs, work, organized, capture, log,
                                           on_support=bool(support))  # fmt: skip
-    curves = in_place_of_along(curves, wide, noise, proposed=proposed)
+    curves = in_place_of_along(curves, wide, noise, points=work, proposed=proposed)
     t_fine = time.perf_counter() - t0 - t_coarse
     if not curves:
         raise NoSeamFound(

@@ -259,7 +259,7 @@ def _middle(curve: FloatArray) -> FloatArray:
     return np.asarray(curve[k] + f * (curve[k + 1] - curve[k]))
 
 
-def in_place_of_along(curves: list[SeamCurve], wide: list[SeamCurve], noise: NoiseModel, *,
+def in_place_of_along(curves: list[SeamCurve], wide: list[SeamCurve], noise: NoiseModel, *, points: FloatArray,
                       proposed: list[SeamCurve] | tuple[SeamCurve, ...] = ()) -> list[SeamCurve]:  # fmt: skip
     """``curves`` with the wide planes' folds ``wide``. Where the structured error is
     :attr:`WideFoldParams.min_structure` times the noise or more, each wide fold stands in place of the seams
@@ -267,9 +267,10 @@ def in_place_of_along(curves: list[SeamCurve], wide: list[SeamCurve], noise: Noi
     the rounding, 10-20 mm off). Below that (from :attr:`WideFoldParams.confirm_structure`: a LiDAR scanning
     at a fine pitch, whose corners the view's surfaces place but whose sparse points near a corner come and go
     from one sampling to the next), a wide fold only confirms a fold the view's surfaces ``proposed`` along it
-    (a candidate before the refinement): the longest refined seam along it is lengthened over its span (the
-    others along it are pieces of the same seam), and where the refinement held none, the wide fold is the
-    seam. A wide fold nothing proposed (facets of a bent panel, which a structured-light camera's bending
+    (a candidate before the refinement): the longest refined seam along it is lengthened over its span, up to
+    the other seams the refinement found along it and only where the work cloud ``points`` show both its faces
+    beside it and nothing standing in it (:func:`_open_ends`), and where the refinement held none, the wide
+    fold is the seam. A wide fold nothing proposed (facets of a bent panel, which a structured-light camera's bending
     error also lets through) is dropped."""
     if not wide:
         return curves
@@ -280,6 +281,8 @@ def in_place_of_along(curves: list[SeamCurve], wide: list[SeamCurve], noise: Noi
         kept = [c for c in curves if not any(runs_along(c.points, w.points, reach, wp.parallel_rad) for w in wide)]
         return kept + wide
     out = list(curves)
+    flat = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    cloud = flat[np.isfinite(flat[:, 2])]
     for w in wide:
         if not any(_along(p.points[[0, -1]], w.points, reach, wp.parallel_rad) for p in proposed):
             continue
@@ -289,9 +292,71 @@ def in_place_of_along(curves: list[SeamCurve], wide: list[SeamCurve], noise: Noi
             out.append(w)
             continue
         longest = max(along, key=lambda i: float(np.linalg.norm(out[i].points[-1] - out[i].points[0])))
-        out[longest] = _lengthened(out[longest], w.points)
-        out = [c for i, c in enumerate(out) if i == longest or i not in along]
+        others = [out[i] for i in along if i != longest]
+        out[longest] = _lengthened(out[longest], _open_ends(out[longest], others, w.points, cloud, noise, reach))
     return out
+
+
+def _open_ends(curve: SeamCurve, others: list[SeamCurve], ends: FloatArray, cloud: FloatArray, noise: NoiseModel,
+               reach: float) -> FloatArray:  # fmt: skip
+    """How far segment ``ends`` (a wide fold's) lengthens ``curve`` (a refined seam along it): towards each of
+    its ends, up to the wide fold's, unless another refined seam lies along the fold that way (the refinement
+    parted the fold there: a gusset stands in it), and only over the stretch next to ``curve`` where the (N, 3)
+    points ``cloud`` show both its faces beside it and nothing standing in it (:func:`_clear_run`). The wide
+    planes, fitted over 30 mm and more, run across what stands in a fold and round a face's corner."""
+    p0, v = curve.points[0], curve.points[-1] - curve.points[0]
+    lv = float(np.linalg.norm(v))
+    u = v / lv
+    t = (ends - p0) @ u
+    mids = [float((_middle(c.points) - p0) @ u) for c in others]
+    lo = min(0.0, float(t.min())) if not any(m < 0.0 for m in mids) else 0.0
+    hi = max(lv, float(t.max())) if not any(m > lv for m in mids) else lv
+    z = float(median(curve.points[:, 2]))
+    tol = 4.0 * float(np.hypot(noise.sigma_m(z), noise.structure_1m_m * z * z))
+    span = (lo - reach, hi + reach)
+    lo = _clear_run(cloud, curve, 0.0, lo, span, tol, reach)
+    hi = _clear_run(cloud, curve, lv, hi, span, tol, reach)
+    return np.array([p0 + lo * u, p0 + hi * u])
+
+
+def _clear_run(cloud: FloatArray, curve: SeamCurve, start: float, stop: float, span: tuple[float, float], tol: float,
+               reach: float) -> float:  # fmt: skip
+    """How far from ``start`` towards ``stop`` (positions along ``curve``'s line) the fold runs on clear: as far
+    as both faces have points beside it (on their planes within ``tol``, beside the line within twice the
+    corner's rounding ``reach``; looked for in steps of half the rounding, sparse scan lines leave gaps) and
+    up to the first point standing in the fold (in front of both faces by more than 0.3 of the rounding: a
+    rounded corner's points lie within 0.29 of its radius, what stands there well beyond). A face that ends
+    (a wall's corner) or a part standing in the fold (a gusset) ends the run."""
+    if stop == start:
+        return start
+    p0, u = curve.points[0], curve.points[-1] - curve.points[0]
+    u = u / float(np.linalg.norm(u))
+    na, nb = curve.normals_a[0], curve.normals_b[0]
+    va, vb = np.cross(u, na), np.cross(u, nb)  # across the line, in each face's plane, into the face
+    va, vb = (va if float(va @ nb) > 0 else -va), (vb if float(vb @ na) > 0 else -vb)
+    t, d = line_coords(cloud, p0, u)
+    near = (t >= span[0]) & (t <= span[1]) & (d <= 2.0 * reach)
+    q, t = cloud[near] - p0, t[near]
+    ra, rb = q @ na, q @ nb
+    on_a = (np.abs(ra) <= tol) & (q @ va > 0.0)
+    on_b = (np.abs(rb) <= tol) & (q @ vb > 0.0)
+    sign = 1.0 if stop > start else -1.0
+    s, s_stop = sign * t, sign * stop  # measured outwards from the seam's end
+    standing = (ra > 0.3 * reach + tol) & (rb > 0.3 * reach + tol) & (s > sign * start)
+    if standing.any():
+        s_stop = min(s_stop, float(s[standing].min()))
+    at = sign * start
+    while at < s_stop:
+        nxt = min(at + 0.5 * reach, s_stop)
+        inside = (s > at) & (s <= nxt)
+        if not (inside & on_a).any() or not (inside & on_b).any():
+            break
+        at = nxt
+    if at == sign * start:
+        return start
+    run = (s > sign * start) & (s <= at)
+    end = min(float(s[run & on_a].max()), float(s[run & on_b].max()), s_stop)  # where the first face ends
+    return sign * end
 
 
 def _majority(labels: NDArray[np.int32]) -> int:

@@ -183,27 +183,56 @@ def _curve(points: list[list[float]], joint: str = "fillet") -> SeamCurve:
                      (1, 2), 100, 0.001)  # fmt: skip
 
 
+def _corner(x_mm: tuple[float, float], *, b_to_mm: float | None = None, gusset_mm: float | None = None) -> np.ndarray:
+    """A concave corner along x at y = 1 mm, z = 0.5 m sampled every millimetre out to 20 mm from it: face A (the
+    floor, z = 0.5, facing -z) on y < 1 mm, face B (the wall, y = 1 mm, facing -y) on z < 0.5 (up to ``b_to_mm``
+    along x when given), and a gusset standing in it (the plane x = ``gusset_mm``) when given."""
+    xs = np.arange(x_mm[0], x_mm[1] + 0.5, 1.0) * 1e-3
+    w = np.arange(0.0, 20.5, 1.0) * 1e-3
+    X, W = np.meshgrid(xs, w, indexing="ij")
+    floor = np.stack([X.ravel(), 0.001 - W.ravel(), np.full(X.size, 0.5)], axis=1)
+    wall = np.stack([X.ravel(), np.full(X.size, 0.001), 0.5 - W.ravel()], axis=1)
+    if b_to_mm is not None:
+        wall = wall[wall[:, 0] <= b_to_mm * 1e-3]
+    parts = [floor, wall]
+    if gusset_mm is not None:
+        Y, Z = np.meshgrid(w, w, indexing="ij")
+        parts.append(np.stack([np.full(Y.size, gusset_mm * 1e-3), 0.001 - Y.ravel(), 0.5 - Z.ravel()], axis=1))
+    return np.vstack(parts)
+
+
 def test_below_twice_the_noise_a_wide_fold_only_confirms_a_proposed_fold() -> None:
     from perception.fine.types import NoiseModel
 
     # structured error 0.8 times the noise (a LiDAR at a fine pitch): the rounding at 0.5 m is 10 spacings of
-    # 1 mm. The wide fold runs 0-100 mm along x
+    # 1 mm. The wide fold runs 0-100 mm along x, both faces beside it all along
     nm = NoiseModel(sigma_1m_m=1e-3, floor_m=5e-5, pixel_angle_rad=0.002, structure_1m_m=8e-4)
     wide = _curve([[0.0, 0.0, 0.5], [0.1, 0.0, 0.5]])
-    # a refined piece along it (20-50 mm, 1 mm beside it) and a shorter one (60-75 mm): the longer is lengthened
-    # over the wide fold's span on its own line, the other is a piece of the same seam
+    cloud = _corner((-30.0, 130.0))
+    # a refined piece along it (20-50 mm, 1 mm beside it): lengthened over the wide fold's span on its own line
     piece = _curve([[0.02, 0.001, 0.5], [0.05, 0.001, 0.5]])
-    short = _curve([[0.06, 0.001, 0.5], [0.075, 0.001, 0.5]])
     elsewhere = _curve([[0.0, 0.05, 0.5], [0.1, 0.05, 0.5]])
     proposed = [_curve([[0.03, 0.002, 0.5], [0.07, 0.002, 0.5]])]
-    out = in_place_of_along([piece, elsewhere, short], [wide], nm, proposed=proposed)
+    out = in_place_of_along([piece, elsewhere], [wide], nm, points=cloud, proposed=proposed)
     assert len(out) == 2 and out[1] is elsewhere
     assert np.allclose(out[0].points, [[0.0, 0.001, 0.5], [0.1, 0.001, 0.5]], atol=1e-12)
+    # another piece the refinement found along it (60-75 mm: the fold parted by what stands in it) is kept,
+    # and the longest is lengthened only away from it
+    short = _curve([[0.06, 0.001, 0.5], [0.075, 0.001, 0.5]])
+    out = in_place_of_along([piece, elsewhere, short], [wide], nm, points=cloud, proposed=proposed)
+    assert len(out) == 3 and out[1] is elsewhere and out[2] is short
+    assert np.allclose(out[0].points, [[0.0, 0.001, 0.5], [0.05, 0.001, 0.5]], atol=1e-12)
+    # a gusset standing in the fold at x = 10 mm ends the lengthening there; the wall ending at x = 80 mm
+    # (its corner: the floor runs on) ends it at the wall's last point
+    for cloud_, ends in ((_corner((-30.0, 130.0), gusset_mm=10.0), (0.010, 0.1)),
+                         (_corner((-30.0, 130.0), b_to_mm=80.0), (0.0, 0.080))):  # fmt: skip
+        out = in_place_of_along([piece], [wide], nm, points=cloud_, proposed=proposed)
+        assert np.allclose(out[0].points[:, 0], ends, atol=1e-9)
     # where the refinement held nothing along it, the wide fold is the seam
-    assert in_place_of_along([elsewhere], [wide], nm, proposed=proposed) == [elsewhere, wide]
+    assert in_place_of_along([elsewhere], [wide], nm, points=cloud, proposed=proposed) == [elsewhere, wide]
     # nothing the view's surfaces proposed lies along it (a proposal 30 mm beside it): it is dropped
     aside = [_curve([[0.03, 0.03, 0.5], [0.07, 0.03, 0.5]])]
-    assert in_place_of_along([piece], [wide], nm, proposed=aside) == [piece]
+    assert in_place_of_along([piece], [wide], nm, points=cloud, proposed=aside) == [piece]
     # from twice the noise the wide fold stands alone, in place of the seams along it
     lidar = NoiseModel(sigma_1m_m=1e-3, floor_m=5e-5, pixel_angle_rad=0.002, structure_1m_m=2.5e-3)
-    assert in_place_of_along([piece, elsewhere], [wide], lidar) == [elsewhere, wide]
+    assert in_place_of_along([piece, elsewhere], [wide], lidar, points=cloud) == [elsewhere, wide]
