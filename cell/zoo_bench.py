@@ -104,20 +104,22 @@ class CaptureScore:
 # Cache
 
 
-def capture_dir(cache: Path, family: str, seed: int) -> Path:
-    return cache / f"v{ZOO_VERSION}" / f"{family}-{seed}"
+def capture_dir(cache: Path, family: str, seed: int, sensor: str | None = None) -> Path:
+    """Where (family, seed) is cached; rendered with ``sensor`` in place of the drawn one, beside the others."""
+    return cache / (f"v{ZOO_VERSION}" if sensor is None else f"v{ZOO_VERSION}-{sensor}") / f"{family}-{seed}"
 
 
-def ensure_capture(cache: Path, family: str, seed: int) -> Path:
-    """Render (family, seed) into the cache unless it is there; the folder is written atomically."""
-    folder = capture_dir(cache, family, seed)
+def ensure_capture(cache: Path, family: str, seed: int, sensor: str | None = None) -> Path:
+    """Render (family, seed) into the cache unless it is there (with ``sensor`` in place of the drawn one,
+    :func:`sim_fakes.zoo.draw_capture`); the folder is written atomically."""
+    folder = capture_dir(cache, family, seed, sensor)
     if (folder / "zoo.json").is_file():
         return folder
     from perception.capture import save_capture
     from perception.transforms import invert_X, transform_points
     from sim_fakes.zoo import draw_capture
 
-    z = draw_capture(family, seed)
+    z = draw_capture(family, seed, sensor=sensor)
     X_camera_world = invert_X(z.result.X_world_camera)
     tmp = folder.with_name(folder.name + f".tmp{os.getpid()}")
     save_capture(z.result.capture, tmp, depth_format="png")
@@ -288,9 +290,9 @@ def _point_errors(seams: Any, truth: list[dict[str, Any]], pts: list[Any], whole
     return _PointErrors(joined(errs), joined(errs_seen), joined(ranges), joined(incid), overreach_m)
 
 
-def _work(args: tuple[str, str, int, str | None]) -> CaptureScore:
-    cache, family, seed, method = args
-    folder = ensure_capture(Path(cache), family, seed)
+def _work(args: tuple[str, str, int, str | None, str | None]) -> CaptureScore:
+    cache, family, seed, method, sensor = args
+    folder = ensure_capture(Path(cache), family, seed, sensor)
     return score_capture(folder, method=method)[0]
 
 
@@ -370,6 +372,7 @@ def run_zoo(
     jobs: int = 1,
     cache: Path | None = None,
     method: str | None = None,
+    sensor: str | None = None,
     progress: Callable[[int, int, CaptureScore], None] | None = None,
 ) -> ZooReport:
     from sim_fakes.zoo import split_plan
@@ -379,7 +382,7 @@ def run_zoo(
     cache_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     scores: list[CaptureScore] = []
-    tasks = [(str(cache_dir), f, s, method) for f, s in plan]
+    tasks = [(str(cache_dir), f, s, method, sensor) for f, s in plan]
     if jobs <= 1:
         for k, t in enumerate(tasks):
             scores.append(_work(t))
@@ -399,14 +402,16 @@ def run_zoo(
     return ZooReport(split, scores, time.perf_counter() - t0)
 
 
-def write_outputs(report: ZooReport, out: Path, cache: Path | None = None, method: str | None = None) -> list[Path]:
-    """bench.json, errors.png (error against range, noise and incidence) and a gallery of the worst 12."""
+def write_outputs(report: ZooReport, out: Path, cache: Path | None = None, method: str | None = None,
+                  sensor: str | None = None) -> list[Path]:  # fmt: skip
+    """bench.json, errors.png (error against range, noise and incidence) and a gallery of the worst 12
+    (``sensor``: the one the report's captures were rendered with in place of the drawn ones)."""
     out.mkdir(parents=True, exist_ok=True)
     written = [out / "bench.json"]
     full = report.to_json(captures=True)
     (out / "bench.json").write_text(json.dumps(full, indent=1))
     written.append(_plot_errors(report, out / "errors.png"))
-    written += _gallery(report, out / "gallery", cache or default_cache_dir(), method)
+    written += _gallery(report, out / "gallery", cache or default_cache_dir(), method, sensor)
     return written
 
 
@@ -457,7 +462,8 @@ def _badness(s: CaptureScore) -> tuple[float, ...]:
             -(s.max_mm if np.isfinite(s.max_mm) else 1e9))  # fmt: skip
 
 
-def _gallery(report: ZooReport, folder: Path, cache: Path, method: str | None = None) -> list[Path]:
+def _gallery(report: ZooReport, folder: Path, cache: Path, method: str | None = None,
+             sensor: str | None = None) -> list[Path]:  # fmt: skip
     """Overlays (detected seams red with torch axes, truth green) of the 12 worst captures."""
     import cv2
 
@@ -469,7 +475,7 @@ def _gallery(report: ZooReport, folder: Path, cache: Path, method: str | None = 
     written = []
     worst = sorted(report.scores, key=_badness)[:12]
     for rank, s in enumerate(worst):
-        src = capture_dir(cache, s.family, s.seed)
+        src = capture_dir(cache, s.family, s.seed, sensor)
         score, result = score_capture(src, keep_result=True, method=method)
         cap = load_capture(src)
         img = draw_overlay(cap, result or DetectionResult("camera", ()), truth=True)

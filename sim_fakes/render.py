@@ -16,6 +16,7 @@ Colour: per-part albedo, two-light Lambertian shading, a brushed-metal texture a
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Literal
 
@@ -277,7 +278,10 @@ class StereoSensor:
     and is quantised to 1/``subpixel`` px before turning back into depth. Pixels the second camera (at
     +baseline along the camera's x axis) cannot see get no depth (stereo shadows); dropouts rise from
     ``grazing_deg`` to ``grazing_deg`` + 15 degrees incidence; depth edges get flying pixels; steel seen
-    near the mirror direction of the projector gets specular holes.
+    near the mirror direction of the projector gets specular holes. With ``median_px`` > 1 the disparity
+    then passes a median post-filter over ``median_px`` square windows (an OAK-D's StereoDepth median: 3, 5
+    or 7) of the valid pixels around each valid one; invalid pixels stay invalid. It rounds corners and
+    grooves over its window and correlates the noise of neighbouring pixels.
     """
 
     baseline_m: float = 0.075
@@ -289,6 +293,7 @@ class StereoSensor:
     p_fly: float = 0.5
     specular_exponent: float = 300.0
     p_speckle: float = 0.002
+    median_px: int = 1
 
 
 def second_eye(X_world_camera: FloatArray, sensor: StereoSensor) -> FloatArray:
@@ -358,7 +363,25 @@ def _stereo_depth(
     p_drop = np.clip((inc_deg - sensor.grazing_deg) / 15.0, 0.0, 1.0) + sensor.p_speckle
     glare = steel & (cos_inc**sensor.specular_exponent * (1.0 + 0.5 * _smooth_field(depth.shape, 6.0, rng)) > 0.6)
     z[valid & ((rng.random(z.shape) < p_drop) | glare)] = np.nan
+    if sensor.median_px > 1:
+        z = fb / _valid_median(fb / z, sensor.median_px)
     return z
+
+
+def _valid_median(img: FloatArray, k: int) -> FloatArray:
+    """Per valid (finite) pixel of ``img``, the median of the valid pixels in its ``k`` x ``k`` window (NaN
+    elsewhere), a band of rows at a time (the (rows, W, k*k) stack of a whole 1280x720 image is 90 MB)."""
+    r = k // 2
+    pad = np.pad(img.astype(np.float32), r, mode="constant", constant_values=np.nan)
+    H, W = img.shape
+    out = np.full((H, W), np.nan)
+    for y0 in range(0, H, 128):
+        y1 = min(y0 + 128, H)
+        stack = np.stack([pad[y0 + i : y1 + i, j : j + W] for i in range(k) for j in range(k)], axis=-1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a window with no valid pixel: NaN, and it is masked
+            out[y0:y1] = np.nanmedian(stack, axis=-1)
+    return np.where(np.isfinite(img), out, np.nan)
 
 
 def _texture(p_world: FloatArray, part_index: NDArray, seed: int) -> FloatArray:

@@ -39,6 +39,8 @@ SENSORS: dict[str, StereoSensor | None] = {
     "oakd": StereoSensor(),
     "oakd_high": StereoSensor(sigma_px=0.16, sigma_corr_px=0.08),
     "structured": None,  # the renderer's structured-light model
+    # not drawn (SENSOR_SHARE): the OAK-D with its 5x5 median post-filter, for `weldcell bench zoo --sensor`
+    "oakd_median": StereoSensor(median_px=5),
 }
 SENSOR_SHARE = {"oakd": 0.60, "structured": 0.25, "oakd_high": 0.15}
 NO_PROMPT_SHARE = 0.15
@@ -425,17 +427,22 @@ def _shift_seam(s: SeamDef, by: int) -> SeamDef:
 
 
 def draw_capture(
-    family: str, seed: int, *, width: int = 1280, height: int = 720, noise_free: bool = False
+    family: str, seed: int, *, width: int = 1280, height: int = 720, noise_free: bool = False,
+    sensor: str | None = None,
 ) -> ZooCapture:
     """Draw, place the camera and render one zoo capture (deterministic in family and seed).
 
     The camera is redrawn (up to 30 times) until at least one seam is visible under :data:`ZOO_RULES` (to both
     cameras of a stereo sensor).
-    ``noise_free`` renders the same draw with exact depth (for tests of the truth).
+    ``noise_free`` renders the same draw with exact depth (for tests of the truth). ``sensor`` (a key of
+    :data:`SENSORS`) renders the same weldment from the same view with that sensor instead of the drawn one.
     """
     scene, rng, n_clutter = draw_scene(family, seed)
     work = np.vstack([_part_points(p) for p in scene.parts if p.workpiece])
     centre = 0.5 * (work.min(axis=0) + work.max(axis=0))
+    if sensor is not None and sensor not in SENSORS:
+        raise KeyError(f"unknown zoo sensor {sensor!r}; choose from {', '.join(SENSORS)}")
+    sensor_override = sensor
     sensor = str(rng.choice(list(SENSOR_SHARE), p=list(SENSOR_SHARE.values())))
     prompted = bool(rng.random() >= NO_PROMPT_SHARE)
     fx = rng.uniform(900.0, 940.0) * width / 1280.0
@@ -452,6 +459,8 @@ def draw_capture(
             break
     scene = replace(scene, camera=cam)
     noise_seed = int(rng.integers(2**31))
+    if sensor_override is not None:
+        sensor = sensor_override
     noise = "structured" if sensor == "structured" else "stereo"
     if noise_free:
         result = render(scene, noise="none", seed=noise_seed, rules=ZOO_RULES)

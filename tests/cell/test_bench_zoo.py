@@ -65,10 +65,11 @@ def test_the_json_is_the_reports_summary(
     calls: list[dict[str, Any]], capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     argv = ["bench", "zoo", "--split", "test", "--n", "3", "--families", "tee,pipe", "--jobs", "2", "--json"]
-    assert main([*argv, "--cache", str(tmp_path), "--method", "surfaces"]) == 0
+    assert main([*argv, "--cache", str(tmp_path), "--method", "surfaces", "--sensor", "oakd_median"]) == 0
     [call] = calls
     assert {k: v for k, v in call.items() if k != "progress"} == {
         "split": "test", "n": 3, "families": ["tee", "pipe"], "jobs": 2, "cache": tmp_path, "method": "surfaces",
+        "sensor": "oakd_median",
     }  # fmt: skip
     doc = json.loads(capsys.readouterr().out)
     assert doc == json.loads(json.dumps(REPORT.to_json()))

@@ -149,3 +149,18 @@ def test_a_detection_through_two_seen_runs_has_its_point_errors_counted_once() -
     # against the runs: 0.5 mm where a run is, up to 35 mm at the middle of the hidden stretch (0.115 m)
     assert m.errors_seen_mm.shape == (21,) and m.errors_seen_mm.max() == pytest.approx(np.hypot(30.0, 0.5), abs=1e-9)
     assert m.overreach_m == pytest.approx(0.064, abs=0.0015)  # the hidden stretch, more than 3 mm from a run
+
+
+def test_a_sensor_override_is_cached_beside_the_drawn_captures_and_offered_by_the_cli() -> None:
+    import argparse
+
+    from cell.commands.bench_zoo import add_parser
+    from cell.zoo_bench import ZOO_VERSION, capture_dir
+
+    root = Path("/cache")
+    assert capture_dir(root, "tee", 7) == root / f"v{ZOO_VERSION}" / "tee-7"
+    assert capture_dir(root, "tee", 7, "oakd_median") == root / f"v{ZOO_VERSION}-oakd_median" / "tee-7"
+    sub = argparse.ArgumentParser().add_subparsers()
+    add_parser(sub)
+    (choice,) = (a for a in sub.choices["zoo"]._actions if a.dest == "sensor")
+    assert set(choice.choices or ()) == set(zoo.SENSORS)

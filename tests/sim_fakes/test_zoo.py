@@ -204,3 +204,35 @@ def test_a_draw_is_deterministic_and_the_splits_do_not_overlap() -> None:
     assert max(counts.values()) - min(counts.values()) <= 1
     first = split_plan("test", 24, ["pipe", "butt"])[:3]
     assert first == [("pipe", 1_000_000), ("butt", 1_000_000), ("pipe", 1_000_001)]
+
+
+def test_the_median_post_filter_takes_the_median_of_the_valid_pixels_around_each_valid_one() -> None:
+    from sim_fakes.render import _valid_median
+
+    # a disparity valley (a concave corner, farther than its faces) along column 10: |x - 10|; each side of it
+    # a plane, which a median leaves as it is; an invalid pixel stays invalid and is left out of its
+    # neighbours' windows
+    x = np.arange(21, dtype=np.float64)
+    img = np.tile(np.abs(x - 10.0), (7, 1))
+    img[3, 4] = np.nan
+    out = _valid_median(img, 3)
+    assert np.isnan(out[3, 4]) and np.isfinite(out[np.isfinite(img)]).all()
+    # the valley's bottom rises: the 3x3 window holds three 0s and six 1s
+    np.testing.assert_allclose(out[1:6, 10], 1.0, atol=1e-6)
+    np.testing.assert_allclose(out[1:6, 12:20], img[1:6, 12:20], atol=1e-5)
+    # the pixel beside the invalid one: the median of its 8 valid neighbours' values and its own
+    win = img[2:5, 4:7].ravel()
+    assert out[3, 5] == pytest.approx(float(np.median(win[np.isfinite(win)])), abs=1e-5)
+
+
+def test_a_sensor_override_renders_the_same_weldment_and_view_with_that_sensor() -> None:
+    a = draw_capture("tee", 3, width=320, height=180)
+    b = draw_capture("tee", 3, width=320, height=180, sensor="oakd_median")
+    assert b.sensor == "oakd_median" and a.sensor != b.sensor
+    np.testing.assert_array_equal(a.result.X_world_camera, b.result.X_world_camera)
+    assert [g.name for g in a.result.ground_truth] == [g.name for g in b.result.ground_truth]
+    for ga, gb in zip(a.result.ground_truth, b.result.ground_truth, strict=True):
+        np.testing.assert_array_equal(ga.points_camera, gb.points_camera)
+    assert not np.array_equal(a.result.capture.depth_m, b.result.capture.depth_m, equal_nan=True)
+    with pytest.raises(KeyError, match="unknown zoo sensor"):
+        draw_capture("tee", 3, width=320, height=180, sensor="kinect")
