@@ -176,3 +176,21 @@ class TestOakDHardware(CameraContract):
             yield camera, None
         finally:
             camera.disconnect()
+
+
+def test_the_pipeline_turns_the_median_post_filter_off() -> None:
+    from unittest.mock import MagicMock
+
+    dai, device = MagicMock(), MagicMock()
+    OakDCamera()._build(dai, device)
+    stereo = dai.Pipeline.return_value.create.return_value
+    stereo.initialConfig.setMedianFilter.assert_called_once_with(dai.StereoDepthConfig.MedianFilter.MEDIAN_OFF)
+    stereo.setSubpixel.assert_called_once_with(True)
+
+
+def test_the_median_off_setting_exists_in_the_installed_depthai() -> None:
+    dai = pytest.importorskip("depthai")
+    cfg = dai.StereoDepthConfig()
+    cfg.setMedianFilter(dai.StereoDepthConfig.MedianFilter.KERNEL_5x5)
+    cfg.setMedianFilter(dai.StereoDepthConfig.MedianFilter.MEDIAN_OFF)
+    assert cfg.getMedianFilter() == dai.StereoDepthConfig.MedianFilter.MEDIAN_OFF
