@@ -84,8 +84,11 @@ def on_table(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseMod
     2.5 times that), whatever their own plane says (of the surfaces whose centre lies on the support's plane
     within the support's own tolerances). A few scan lines of a LiDAR's table fit a plane at any tilt
     about them, and where the sensor bends the table its pieces leave the support's plane: without this, two
-    such strips a few millimetres apart on their tilted planes pass for a lap. A plate lying on the table is
-    its thickness above it; a surface the operator clicked is the workpiece."""
+    such strips a few millimetres apart on their tilted planes pass for a lap. A surface with no table points
+    around it (a strip of the table at the image's border, below a plate's edge face) is the table when it is
+    near the support's tilt (:data:`STRIP_TILT_RAD`) and its points lie on the support's own plane as the
+    table's do (:func:`_on_plane`). A plate lying on the table is its thickness above it; a surface the
+    operator clicked is the workpiece."""
     from scipy.ndimage import find_objects
     from scipy.spatial import cKDTree
 
@@ -114,6 +117,11 @@ def on_table(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseMod
         x = x[np.isfinite(x[:, 2])]
         local = table_around(tree, table, x, TABLE_AROUND_M)
         if local is None:
+            # no table around it (a strip of it at the image's border, below a plate's edge face): on the
+            # support's own plane as the table is, if near its tilt (a strip a few pixels wide fits a plane
+            # tilted by its noise, all the more where the sensor smoothed its depth)
+            if float(s.normal @ plane.normal) > np.cos(STRIP_TILT_RAD) and _on_plane(x, plane, noise):
+                out.add(s.label)
             continue
         c, n, around = local
         res = np.abs((x - c) @ n)
@@ -121,6 +129,18 @@ def on_table(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseMod
         if float(np.median(res)) <= spread and float(np.percentile(res, 90)) <= 2.5 * spread:
             out.add(s.label)
     return frozenset(out)
+
+
+STRIP_TILT_RAD = float(np.radians(15.0))  # a table strip alone fits a plane at most this far off the table's
+
+
+def _on_plane(x: FloatArray, plane: Surface, noise: NoiseModel) -> bool:
+    """Whether the (N, 3) points ``x`` lie on ``plane`` as the table's do: their median distance within its
+    flatness and the noise, nine in ten within 2.5 times that."""
+    if len(x) < 10:
+        return False
+    r = np.abs(plane.residual(x)) / (_flatness(noise, x[:, 2]) + noise.sigma_m(x[:, 2]))
+    return bool(np.median(r) <= 1.0 and np.percentile(r, 90) <= 2.5)
 
 
 def table_sample(points: NDArray[np.floating], labels: NDArray[np.int32], support: frozenset[int],

@@ -224,3 +224,37 @@ def test_a_strip_of_the_table_fitted_at_a_tilt_is_the_table_and_a_plate_on_it_is
     assert on_table(p, surf, nm, frozenset({0}), prompted=frozenset({3})) == frozenset({1})
     assert on_table(p, surf, nm, frozenset({0})) == frozenset({1, 3})
     assert on_table(p, surf, nm, frozenset()) == frozenset()
+
+
+def test_a_strip_of_the_table_with_no_table_around_it_is_the_table_where_it_lies_on_the_supports_plane() -> None:
+    from perception.fine.support import on_table
+    from perception.fine.types import NoiseModel, Surface, SurfaceSet
+
+    # the table (label 0) fills the left of the image; 60 px (0.048 m at 0.8 m, more than the 30 mm the local
+    # table is looked for in) beyond it, across a band the camera saw nothing in, a strip at the image's border
+    # (label 1) on the table's plane, fitted 8 degrees off it, and a strip of a plate 6 mm above the table
+    # (label 2), fitted as flat as the table: only the first is the table
+    rng = np.random.default_rng(1)
+    h, w = 200, 300
+    yy, xx = np.mgrid[0:h, 0:w]
+    table = xx < 150
+    strip = (xx >= 210) & (yy >= 190)
+    plate = (xx >= 210) & (yy < 12)
+    z = np.where(plate, 0.794, 0.8) + rng.normal(0.0, 3e-4, (h, w))
+    p = np.dstack([(xx - w / 2) * 0.001 * z, (yy - h / 2) * 0.001 * z, z])
+    p[~(table | strip | plate)] = np.nan
+    labels = np.select([table, strip, plate], [0, 1, 2], -1).astype(np.int32)
+    down = np.array([0.0, 0.0, -1.0])
+    tilted = np.array([0.0, np.sin(np.radians(8.0)), -np.cos(np.radians(8.0))])
+
+    def surface(label: int, normal: np.ndarray) -> Surface:
+        c = np.nanmean(p[labels == label], axis=0)
+        return Surface(label, "plane", normal, -float(normal @ c), 3e-4, int((labels == label).sum()), c, float(c[2]))
+
+    surf = SurfaceSet(labels, 1, (surface(0, down), surface(1, tilted), surface(2, down)))
+    nm = NoiseModel(sigma_1m_m=3e-4 / 0.64, floor_m=5e-5, pixel_angle_rad=0.001)
+    assert on_table(p, surf, nm, frozenset({0})) == frozenset({1})
+    # fitted 20 degrees off the table it is no strip of it (a face, however it lies)
+    steep = np.array([0.0, np.sin(np.radians(20.0)), -np.cos(np.radians(20.0))])
+    surf = SurfaceSet(labels, 1, (surface(0, down), surface(1, steep), surface(2, down)))
+    assert on_table(p, surf, nm, frozenset({0})) == frozenset()
