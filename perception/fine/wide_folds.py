@@ -55,6 +55,11 @@ class WideFoldParams:
         return self.reach_spacings * float(noise.spacing_m(z))
 
 
+def _sigma_wide(noise: NoiseModel, z: float) -> float:
+    """The noise at range ``z`` seen at the scale of a face: sqrt(sigma^2 + structure^2)."""
+    return float(np.hypot(noise.sigma_m(z), noise.structure_1m_m * z * z))
+
+
 @dataclass(frozen=True)
 class WidePlane:
     """A plane fitted to points within ``tol_m`` of it: unit ``normal`` towards the camera, ``offset``
@@ -87,7 +92,7 @@ def wide_fold_seams(points: NDArray[np.floating], surfaces: SurfaceSet, noise: N
     pick = idx[np.sort(rng.permutation(len(idx))[: wp.sample])]
     q = p[pick]
     z = float(np.median(q[:, 2]))
-    sigma_wide = float(np.hypot(noise.sigma_m(z), structure_1m * z * z))
+    sigma_wide = _sigma_wide(noise, z)
     # the sample's own spacing: the work image's, thinned by the sampling
     spacing = float(noise.spacing_m(z)) * float(np.sqrt(len(idx) / len(pick)))
     tol = wp.tol_sigma * sigma_wide
@@ -311,24 +316,23 @@ def _open_ends(curve: SeamCurve, others: list[SeamCurve], ends: FloatArray, clou
     mids = [float((_middle(c.points) - p0) @ u) for c in others]
     lo = min(0.0, float(t.min())) if not any(m < 0.0 for m in mids) else 0.0
     hi = max(lv, float(t.max())) if not any(m > lv for m in mids) else lv
-    z = float(median(curve.points[:, 2]))
-    tol = 4.0 * float(np.hypot(noise.sigma_m(z), noise.structure_1m_m * z * z))
-    span = (lo - reach, hi + reach)
-    lo = _clear_run(cloud, curve, 0.0, lo, span, tol, reach)
-    hi = _clear_run(cloud, curve, lv, hi, span, tol, reach)
+    if lo < 0.0 or hi > lv:  # the points beside the fold, once for both ends
+        tol = WideFoldParams().tol_sigma * _sigma_wide(noise, float(median(curve.points[:, 2])))
+        beside = _beside_fold(cloud, curve, (lo - reach, hi + reach), tol, reach)
+        lo = _clear_run(beside, 0.0, lo, reach)
+        hi = _clear_run(beside, lv, hi, reach)
     return np.array([p0 + lo * u, p0 + hi * u])
 
 
-def _clear_run(cloud: FloatArray, curve: SeamCurve, start: float, stop: float, span: tuple[float, float], tol: float,
-               reach: float) -> float:  # fmt: skip
-    """How far from ``start`` towards ``stop`` (positions along ``curve``'s line) the fold runs on clear: as far
-    as both faces have points beside it (on their planes within ``tol``, beside the line within twice the
-    corner's rounding ``reach``; looked for in steps of half the rounding, sparse scan lines leave gaps) and
-    up to the first point standing in the fold (in front of both faces by more than 0.3 of the rounding: a
-    rounded corner's points lie within 0.29 of its radius, what stands there well beyond). A face that ends
-    (a wall's corner) or a part standing in the fold (a gusset) ends the run."""
-    if stop == start:
-        return start
+_Beside = tuple[FloatArray, NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_]]
+
+
+def _beside_fold(cloud: FloatArray, curve: SeamCurve, span: tuple[float, float], tol: float, reach: float) -> _Beside:
+    """The points of ``cloud`` along ``curve``'s line over ``span`` (positions along it) and beside it within
+    twice the corner's rounding ``reach``: their positions along the line, and whether each lies on face A, on
+    face B (on its plane within ``tol``, on its side of the line) and stands in the fold (in front of both
+    faces by more than 0.3 of the rounding: a rounded corner's points lie within 0.29 of its radius, what
+    stands there well beyond)."""
     p0, u = curve.points[0], curve.points[-1] - curve.points[0]
     u = u / float(np.linalg.norm(u))
     na, nb = curve.normals_a[0], curve.normals_b[0]
@@ -340,9 +344,20 @@ def _clear_run(cloud: FloatArray, curve: SeamCurve, start: float, stop: float, s
     ra, rb = q @ na, q @ nb
     on_a = (np.abs(ra) <= tol) & (q @ va > 0.0)
     on_b = (np.abs(rb) <= tol) & (q @ vb > 0.0)
+    return t, on_a, on_b, (ra > 0.3 * reach + tol) & (rb > 0.3 * reach + tol)
+
+
+def _clear_run(beside: _Beside, start: float, stop: float, reach: float) -> float:
+    """How far from ``start`` towards ``stop`` (positions along the seam's line) the fold runs on clear
+    (:func:`_beside_fold`'s points): as far as both faces have points beside it (looked for in steps of half
+    the corner's rounding ``reach``: sparse scan lines leave gaps) and up to the first point standing in the
+    fold. A face that ends (a wall's corner) or a part standing in the fold (a gusset) ends the run."""
+    if stop == start:
+        return start
+    t, on_a, on_b, in_front = beside
     sign = 1.0 if stop > start else -1.0
     s, s_stop = sign * t, sign * stop  # measured outwards from the seam's end
-    standing = (ra > 0.3 * reach + tol) & (rb > 0.3 * reach + tol) & (s > sign * start)
+    standing = in_front & (s > sign * start)
     if standing.any():
         s_stop = min(s_stop, float(s[standing].min()))
     at = sign * start
