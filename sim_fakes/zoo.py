@@ -442,8 +442,7 @@ def draw_capture(
     centre = 0.5 * (work.min(axis=0) + work.max(axis=0))
     if sensor is not None and sensor not in SENSORS:
         raise KeyError(f"unknown zoo sensor {sensor!r}; choose from {', '.join(SENSORS)}")
-    sensor_override = sensor
-    sensor = str(rng.choice(list(SENSOR_SHARE), p=list(SENSOR_SHARE.values())))
+    drawn = str(rng.choice(list(SENSOR_SHARE), p=list(SENSOR_SHARE.values())))  # the view is drawn for it
     prompted = bool(rng.random() >= NO_PROMPT_SHARE)
     fx = rng.uniform(900.0, 940.0) * width / 1280.0
     cam = scene.camera
@@ -455,12 +454,11 @@ def draw_capture(
         eye = target + dist * np.array([np.cos(elev) * np.cos(az), np.cos(elev) * np.sin(az), np.sin(elev)])
         cam = CameraSetup(eye=tuple(eye), target=tuple(target), width=width, height=height, fx=fx, fy=fx)
         if visible_ground_truth(replace(scene, camera=cam), look_at_X(eye, target), rules=ZOO_RULES,
-                                sensor=SENSORS[sensor]):  # fmt: skip
+                                sensor=SENSORS[drawn]):  # fmt: skip
             break
     scene = replace(scene, camera=cam)
     noise_seed = int(rng.integers(2**31))
-    if sensor_override is not None:
-        sensor = sensor_override
+    sensor = drawn if sensor is None else sensor
     noise = "structured" if sensor == "structured" else "stereo"
     if noise_free:
         result = render(scene, noise="none", seed=noise_seed, rules=ZOO_RULES)
