@@ -366,7 +366,9 @@ class DetectionConfig(Section):
     fine stage on fitted surfaces, :mod:`perception.detect_surfaces`) or ``"paper"``; ``unprompted``: without
     prompts, ``"aim"`` welds the part the camera is aimed at (and what stands on it), not boxes or fixtures
     beside it on the table; ``"all"`` every part in view;
-    ``merge_tol_m``/``merge_min_overlap_m``: two seams closer than this over at least that length are one."""
+    ``merge_tol_m``/``merge_min_overlap_m``: two seams closer than this over at least that length are one;
+    ``helper_process``: the daemon keeps a second process that takes a share of each detection's fine stage
+    (:mod:`perception.helper_process`: the same seams, sooner on a computer with two cores or more)."""
 
     voxel_m: float = Field(default=0.003, gt=0, le=0.05)
     crop: bool = True
@@ -376,6 +378,7 @@ class DetectionConfig(Section):
     unprompted: Literal["aim", "all"] = "aim"
     merge_tol_m: float = Field(default=0.003, gt=0)
     merge_min_overlap_m: float = Field(default=0.02, gt=0)
+    helper_process: bool = True
 
     @model_validator(mode="after")
     def _check_range(self) -> DetectionConfig:

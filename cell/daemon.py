@@ -84,6 +84,7 @@ from cell.planning import WeldPath
 from cell.request_parsing import body_text, parse_flag, parse_json_object
 from cell.runner import CellBusy, JobRunner
 from cell.sim_fault_api import SimFaultSwitch
+from perception.helper_process import HelperProcess
 
 logger = logging.getLogger(__name__)
 
@@ -140,7 +141,10 @@ class Daemon:
             self.cell = cell if cell is not None else build_cell(config, start_simulators=start_simulators)
             if self._own_cell:
                 self.cell.connect()
-            self.runner = JobRunner(self.cell, journal=self.journal, status_image=self.status_image)
+            # the detector's second process starts now and warms up while the daemon waits for its first job
+            self.helper = HelperProcess() if config.detection.helper_process else None
+            self.runner = JobRunner(self.cell, journal=self.journal, status_image=self.status_image,
+                                    helper=self.helper)  # fmt: skip
             self.runner.switch_arc_off()  # the previous process may have died with the arc on
             if sim_faults:
                 self.sim = SimFaultSwitch(
@@ -149,6 +153,9 @@ class Daemon:
         except BaseException:
             if self._own_cell and cell is None and hasattr(self, "cell"):
                 self.cell.close()
+            helper = getattr(self, "helper", None)
+            if helper is not None:
+                helper.close()
             self.journal.close()
             raise
         self._queue: queue.Queue[_Queued | None] = queue.Queue()
@@ -173,6 +180,8 @@ class Daemon:
         try:
             sock = listen(dc.host, dc.port)
         except OSError:
+            if self.helper is not None:
+                self.helper.close()
             if self._own_cell:
                 self.cell.close()
             self.journal.close()
@@ -545,6 +554,8 @@ class Daemon:
             with contextlib.suppress(Exception):  # a measurement must never stop the shutdown
                 self._memory_log.close()
         self.http.stop()
+        if self.helper is not None:
+            self.helper.close()
         if self._own_cell:
             self.cell.close()
         self.journal.close()

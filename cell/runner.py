@@ -65,6 +65,7 @@ from drivers.errors import (
 )
 from drivers.protocols import RobotMode
 from perception.errors import NoSeamFound
+from perception.helper_process import HelperProcess
 
 logger = logging.getLogger(__name__)
 
@@ -97,7 +98,7 @@ class JobRunner:
     period and, while the robot moves, its answer deadline (:class:`cell.watchdog.DeviceWatchdog`): a robot that
     stops answering is a fault within one period plus the deadline, 0.5 s, which leaves room under the 1 s the cell
     promises for a host whose other work delays the poll (a soak beside two benchmark processes took 1.02 s with a
-    0.6 s deadline)."""
+    0.6 s deadline). ``helper``: a second process for the detections' fine stage (the caller owns it)."""
 
     def __init__(
         self,
@@ -108,8 +109,10 @@ class JobRunner:
         status_image: str | Path | None = None,
         watchdog_period_s: float = 0.1,
         answer_timeout_s: float = 0.4,
+        helper: HelperProcess | None = None,
     ) -> None:
         self.cell = cell
+        self.helper = helper
         self.config = cell.config
         self.journal = journal
         self.limits = safety_limits(cell.config)
@@ -477,7 +480,7 @@ class JobRunner:
             data.results = []
             for k, (_t, capture) in enumerate(data.captures):
                 try:
-                    result = detect(capture, params)
+                    result = detect(capture, params, helper=self.helper)
                 except NoSeamFound as err:
                     failures.append(f"capture {k + 1}: {err}")
                     data.results.append(None)

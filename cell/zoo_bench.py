@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from cell.pools import ONE_THREAD_VARS, one_thread_children
+from perception.helper_process import HelperProcess
 
 ZOO_VERSION = 4  # bump when the generator or renderer changes what a (family, seed) draws
 COVER_FOUND = 0.5
@@ -171,8 +172,10 @@ def ensure_capture(cache: Path, family: str, seed: int, sensor: str | None = Non
 # Detect and score one capture
 
 
-def score_capture(folder: Path, *, keep_result: bool = False, method: str | None = None) -> tuple[CaptureScore, Any]:
-    """Detect the cached capture in ``folder`` and score it against its truth."""
+def score_capture(folder: Path, *, keep_result: bool = False, method: str | None = None,
+                  helper: HelperProcess | None = None) -> tuple[CaptureScore, Any]:  # fmt: skip
+    """Detect the cached capture in ``folder`` and score it against its truth (``helper``: the detector's
+    second process, for a run of one capture at a time)."""
     from perception.capture import load_capture
     from perception.detect import DetectParams, detect
     from perception.errors import NoSeamFound
@@ -186,7 +189,8 @@ def score_capture(folder: Path, *, keep_result: bool = False, method: str | None
                 clutter=meta["clutter"], camera_distance_m=meta["camera_distance_m"], gt_seams=len(gt))  # fmt: skip
     t0 = time.perf_counter()
     try:
-        result = detect(cap, DetectParams() if method is None else DetectParams(method=method))  # type: ignore[arg-type]
+        params = DetectParams() if method is None else DetectParams(method=method)  # type: ignore[arg-type]
+        result = detect(cap, params, helper=helper)
     except NoSeamFound as err:
         return _unscored(base, meta, time.perf_counter() - t0, "no_seam", str(err)), None
     except Exception as err:  # a bug: counted and shown, never hidden
@@ -290,10 +294,10 @@ def _point_errors(seams: Any, truth: list[dict[str, Any]], pts: list[Any], whole
     return _PointErrors(joined(errs), joined(errs_seen), joined(ranges), joined(incid), overreach_m)
 
 
-def _work(args: tuple[str, str, int, str | None, str | None]) -> CaptureScore:
+def _work(args: tuple[str, str, int, str | None, str | None], helper: HelperProcess | None = None) -> CaptureScore:
     cache, family, seed, method, sensor = args
     folder = ensure_capture(Path(cache), family, seed, sensor)
-    return score_capture(folder, method=method)[0]
+    return score_capture(folder, method=method, helper=helper)[0]
 
 
 def _init_worker() -> None:
@@ -384,10 +388,13 @@ def run_zoo(
     scores: list[CaptureScore] = []
     tasks = [(str(cache_dir), f, s, method, sensor) for f, s in plan]
     if jobs <= 1:
-        for k, t in enumerate(tasks):
-            scores.append(_work(t))
-            if progress:
-                progress(k + 1, len(tasks), scores[-1])
+        # one capture at a time, as on the cell: the detector's helper process takes the second core
+        with HelperProcess() as helper:
+            helper.wait_ready()  # started before the first capture is timed
+            for k, t in enumerate(tasks):
+                scores.append(_work(t, helper))
+                if progress:
+                    progress(k + 1, len(tasks), scores[-1])
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor

@@ -30,6 +30,7 @@ from perception.cloud import stray_points, surface_spacing
 from perception.detect_params import DetectParams, StepLog
 from perception.errors import BadCapture, NoSeamFound, PerceptionError
 from perception.fits import fit_plane
+from perception.helper_process import HelperProcess
 from perception.organized import veil_mask
 from perception.path import interpolate_rows, sample_uniform, torch_poses
 from perception.region_seams import regions_to_seams
@@ -243,15 +244,15 @@ def _orient(seam: Seam, frame: str) -> Seam:
     return replace(seam, points=pts, poses=poses)
 
 
-def detect(
-    capture: Capture, params: DetectParams | None = None, *, segmenter: Segmenter | None = None
-) -> DetectionResult:
-    """Detect every seam in ``capture``. Raises NoSeamFound (with the step that emptied it)."""
+def detect(capture: Capture, params: DetectParams | None = None, *, segmenter: Segmenter | None = None,
+           helper: HelperProcess | None = None) -> DetectionResult:  # fmt: skip
+    """Detect every seam in ``capture``. Raises NoSeamFound (with the step that emptied it). ``helper``: a
+    second process that takes a share of the surfaces method's fine stage (the same result, sooner)."""
     p = params or DetectParams()
     if p.method == "surfaces":
         from perception.detect_surfaces import detect_surfaces
 
-        return detect_surfaces(capture, p, segmenter=segmenter)
+        return detect_surfaces(capture, p, segmenter=segmenter, helper=helper)
     seg = segmenter or GraphSegmenter(p.segmenter)
     log = StepLog()
     t0 = time.perf_counter()

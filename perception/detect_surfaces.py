@@ -17,24 +17,25 @@ Each step is timed and counted in the result's ``timing_s`` (``step_<name>``) an
 
 from __future__ import annotations
 
-import os
 import time
-from concurrent.futures import ThreadPoolExecutor
-from contextlib import nullcontext
-from dataclasses import replace
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from perception.capture import Capture
+from perception.capture import CameraIntrinsics, Capture
 from perception.detect import DetectParams, StepLog, _to_seams
 from perception.errors import NoSeamFound
 from perception.fine.types import NoiseModel, Pair, SeamCurve, SurfaceSet
 from perception.fits import median
+from perception.helper_process import HelperProcess
 from perception.seamfit import SeamGeometry
 from perception.seams import DetectionResult
 from perception.segmentation import Segmenter
+
+if TYPE_CHECKING:
+    from perception.fine.gaps import Outline
 
 
 def detect_surfaces(
@@ -43,11 +44,13 @@ def detect_surfaces(
     *,
     segmenter: Segmenter | None = None,
     organized: NDArray[np.float32] | None = None,
+    helper: HelperProcess | None = None,
 ) -> DetectionResult:
     """Every seam of ``capture`` from fitted surfaces and the joints between them; NoSeamFound (with the
     fitted surfaces as artifacts, for the overlay) when there is none. ``organized``: the (H, W, 3) points
     to use instead of the depth back-projected through the pixel centres (a cloud's range image,
-    :mod:`perception.cloud_view`, keeps its points where they were measured)."""
+    :mod:`perception.cloud_view`, keeps its points where they were measured). ``helper``: a second process
+    for the fine stage's independent jobs (the result is the same without one)."""
     from perception.fine.wide_folds import in_place_of_along
 
     del segmenter  # same signature as detect(); the surfaces stage does not use the image segmenter yet
@@ -70,7 +73,7 @@ def detect_surfaces(
     log.counts["wide_folds"] = len(wide)
     t_coarse = time.perf_counter() - t0
     curves, used = _full_resolution_steps(curves, surf, noise, skip, pairs, work, organized, capture, log,
-                                          on_support=bool(support))  # fmt: skip
+                                          on_support=bool(support), helper=helper)  # fmt: skip
     curves = in_place_of_along(curves, wide, noise, points=work, proposed=proposed)
     t_fine = time.perf_counter() - t0 - t_coarse
     if not curves:
@@ -175,13 +178,38 @@ def _work_resolution_steps(
     return curves, surf, noise, support, skip, pairs
 
 
-FINE_THREADS = 2  # the full-resolution steps' threads (the cell's computer has two cores or more) ...
+@dataclass(frozen=True)
+class _FineJobs:
+    """What the fine stage's independent jobs read besides the full-resolution arrays (:func:`_fine_job`): job
+    k < len(seams) refines seam k, job len(seams) + j searches outline j for inner gaps."""
+
+    seams: tuple[SeamCurve, ...]
+    outlines: tuple[Outline, ...]
+    intrinsics: CameraIntrinsics
+    surfaces: SurfaceSet
+    noise_full: NoiseModel
 
 
-def _fine_threads() -> int:
-    """... unless the process is told to use one (``OMP_NUM_THREADS=1``, as each of a bench's worker
-    processes is, several running at once on those cores)."""
-    return 1 if os.environ.get("OMP_NUM_THREADS") == "1" else FINE_THREADS
+def _fine_job(jobs: _FineJobs, arrays: dict[str, NDArray[Any]], job: int) -> tuple[list[SeamCurve], NDArray[np.intp]]:
+    """One of the fine stage's independent jobs (in this process or the helper's): the refined pieces of a seam
+    and the flat indices of the full-resolution pixels it read, or the inner gaps of an outline (none read: the
+    crop is the seams' bands). ``arrays``: the organized cloud ("full"), the colour image ("color", when the
+    capture has one), and the colour image's dark-line response once an outline has needed it ("dark")."""
+    from perception.fine.gaps import outline_gap_seams
+    from perception.fine.refine import RefineParams, refine_one
+
+    full = arrays["full"]
+    if job >= len(jobs.seams):
+        dark = [arrays["dark"]] if "dark" in arrays else []
+        outline = jobs.outlines[job - len(jobs.seams)]
+        found = outline_gap_seams(full, jobs.intrinsics, jobs.surfaces, jobs.noise_full, outline,
+                                  color_rgb=arrays.get("color"), dark=dark)  # fmt: skip
+        if dark and "dark" not in arrays:
+            arrays["dark"] = dark[0]  # for this capture's other outlines in this process
+        return found, np.zeros(0, dtype=np.intp)
+    read = np.zeros(full.shape[:2], dtype=bool)
+    pieces = refine_one(jobs.seams[job], full, jobs.intrinsics, jobs.surfaces, jobs.noise_full, RefineParams(), read)
+    return pieces, np.flatnonzero(read)
 
 
 def _full_resolution_steps(
@@ -196,14 +224,15 @@ def _full_resolution_steps(
     log: StepLog,
     *,
     on_support: bool = True,
+    helper: HelperProcess | None = None,
 ) -> tuple[list[SeamCurve], int]:
     """Refinement on the full-resolution points near each seam, the narrow gaps and steps only full
     resolution shows, and the view clip; with how many full-resolution points were read. ``on_support``:
-    whether the parts stand on a support (else the refined folds are named by how their faces turn alone)."""
+    whether the parts stand on a support (else the refined folds are named by how their faces turn alone).
+    ``helper``: a second process that takes a share of the seams' refinements and the inner-gap search."""
     from perception.fine.corners import join_corners
-    from perception.fine.gaps import inner_gap_seams, over_groove
+    from perception.fine.gaps import gap_outlines, over_groove
     from perception.fine.merge import merge_collinear
-    from perception.fine.refine import refine_seams
     from perception.fine.steps import step_seams
     from perception.fine.trace import beside_groove, shallow_as_grooves, trace_grooves
     from perception.fine.visibility import clip_to_view
@@ -214,23 +243,23 @@ def _full_resolution_steps(
     # the inner gaps at each plate's depth; merge's checks lie on refined seams' lines, inside their bands)
     read = np.zeros(organized.shape[:2], dtype=bool)
     # the inner gaps read neither the refined seams (only which pairs a butt seam parts already, and the
-    # refinement leaves butt seams as they are) nor the crop: they are searched on one core while the seams
-    # are refined, each on its own, on both
-    butts = [c for c in curves if c.joint == "butt"]
-    threads = _fine_threads()
-    with ThreadPoolExecutor(max_workers=threads) if threads > 1 else nullcontext() as pool:
-
-        def inner_gaps() -> list[SeamCurve]:
-            return inner_gap_seams(organized, capture.intrinsics, surf, noise_full, support=skip,
-                                   color_rgb=capture.color_rgb, pairs=pairs, found=butts)  # fmt: skip
-
-        gaps_job = pool.submit(inner_gaps) if pool is not None else None
-        with log.step("refine"):
-            curves, _ = refine_seams(curves, organized, capture.intrinsics, surf, noise_full, read=read, pool=pool)
-            if not on_support:
-                curves = shallow_as_grooves(curves)
-        with log.step("inner_gaps"):  # with threads, the time waited for them past the refinement
-            curves += gaps_job.result() if gaps_job is not None else inner_gaps()
+    # refinement leaves butt seams as they are) nor the crop: each seam's refinement and each plane outline's
+    # search for inner gaps is a job of its own, shared with the helper process when there is one
+    outlines = gap_outlines(surf, noise_full, support=skip, pairs=pairs, found=[c for c in curves if c.joint == "butt"])
+    jobs = _FineJobs(tuple(curves), tuple(outlines), capture.intrinsics, surf, noise_full)
+    arrays = {"full": organized} | ({"color": capture.color_rgb} if capture.color_rgb is not None else {})
+    with log.step("refine"):  # with the inner gaps
+        todo = list(range(len(curves) + len(outlines)))
+        done = helper.run(_fine_job, jobs, arrays, todo) if helper is not None else [_fine_job(jobs, arrays, k)
+                                                                                     for k in todo]  # fmt: skip
+        curves = []
+        for pieces, px in done[: len(jobs.seams)]:
+            curves += pieces
+            read.reshape(-1)[px] = True
+        if not on_support:
+            curves = shallow_as_grooves(curves)
+    for gaps, _ in done[len(jobs.seams) :]:
+        curves += gaps
     with log.step("steps"):
         steps = step_seams(work, surf, pairs, noise, organized, capture.intrinsics, noise_full, support=skip,
                            read=read)  # fmt: skip

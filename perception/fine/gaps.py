@@ -216,23 +216,57 @@ def inner_gap_seams(
     ``found``) are looked in as one outline: the work-resolution test of :func:`gap_seams` cannot tell a gap
     it does not sample from a seam of the segmentation; the full resolution can. Only a gap with one plate on
     each side counts there."""
+    gp = params or InnerGapParams()
+    dark: list[NDArray[np.int16]] = []  # the image's dark-line response, computed once when first needed
+    out: list[SeamCurve] = []
+    for outline in gap_outlines(surfaces, noise_full, support=support, params=gp, pairs=pairs, found=found):
+        out += outline_gap_seams(full, intr, surfaces, noise_full, outline, params=gp, color_rgb=color_rgb, dark=dark)
+    return out
+
+
+@dataclass(frozen=True)
+class Outline:
+    """A closed outline :func:`inner_gap_seams` looks in: plane ``plane``'s pixels of the surfaces ``labels``
+    (their work-resolution box ``box``, rows and columns); ``parting``, for two plates of one plane, the pair
+    a gap there must run between."""
+
+    plane: Surface
+    labels: tuple[int, ...]
+    box: tuple[slice, ...]
+    parting: tuple[int, int] | None = None
+
+
+def gap_outlines(surfaces: SurfaceSet, noise_full: NoiseModel, *, support: frozenset[int],
+                 params: InnerGapParams | None = None, pairs: tuple[Pair, ...] = (),
+                 found: Sequence[SeamCurve] = ()) -> list[Outline]:  # fmt: skip
+    """The outlines :func:`inner_gap_seams` looks in, each its own search (:func:`outline_gap_seams`): every
+    plane's off ``support``, then each pair of coplanar plates with no butt seam between them among ``found``."""
     from scipy import ndimage
 
     gp = params or InnerGapParams()
     boxes = ndimage.find_objects(surfaces.labels + 1)  # each label's box at the work resolution, found once
-    dark: list[NDArray[np.int16]] = []  # the image's dark-line response, computed once when first needed
-    out: list[SeamCurve] = []
-    for s in surfaces.surfaces:
-        if s.kind != "plane" or s.label in support or s.label >= len(boxes) or boxes[s.label] is None:
-            continue
-        out += _outline_gaps(full, intr, surfaces, noise_full, s, (s.label,), boxes[s.label], gp, color_rgb, dark)
+    out = [Outline(s, (s.label,), boxes[s.label]) for s in surfaces.surfaces
+           if s.kind == "plane" and s.label not in support and s.label < len(boxes) and boxes[s.label] is not None]
     for a, b in _coplanar_pairs(surfaces, pairs, support, found, noise_full, gp):
         box = tuple(slice(min(x.start, y.start), max(x.stop, y.stop)) for x, y in zip(boxes[a], boxes[b], strict=True))
         big = max(surfaces.surfaces[a], surfaces.surfaces[b], key=lambda x: x.n_points)
-        for seam in _outline_gaps(full, intr, surfaces, noise_full, big, (a, b), box, gp, color_rgb, dark):
-            if _parts(seam, surfaces, a, b, intr):
-                out.append(replace(seam, surfaces=(a, b)))
+        out.append(Outline(big, (a, b), box, parting=(a, b)))
     return out
+
+
+def outline_gap_seams(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet,
+                      noise_full: NoiseModel, outline: Outline, *, params: InnerGapParams | None = None,
+                      color_rgb: NDArray[np.uint8] | None = None,
+                      dark: list[NDArray[np.int16]] | None = None) -> list[SeamCurve]:  # fmt: skip
+    """The inner gaps of one :class:`Outline` (:func:`inner_gap_seams`). ``dark``: where the colour image's
+    dark-line response is kept once computed (appended to on first use), for the outlines of one capture."""
+    gp = params or InnerGapParams()
+    seams = _outline_gaps(full, intr, surfaces, noise_full, outline.plane, outline.labels, outline.box, gp,
+                          color_rgb, [] if dark is None else dark)  # fmt: skip
+    if outline.parting is None:
+        return seams
+    a, b = outline.parting
+    return [replace(seam, surfaces=(a, b)) for seam in seams if _parts(seam, surfaces, a, b, intr)]
 
 
 def _coplanar_pairs(surfaces: SurfaceSet, pairs: tuple[Pair, ...], support: frozenset[int],

@@ -11,7 +11,6 @@ seen from above), the seam is the middle of the two surfaces' facing edges inste
 
 from __future__ import annotations
 
-from concurrent.futures import Executor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -136,29 +135,23 @@ def refine_seams(
     *,
     params: RefineParams | None = None,
     read: NDArray[np.bool_] | None = None,
-    pool: Executor | None = None,
 ) -> tuple[list[SeamCurve], int]:
     """Refined seams, and how many full-resolution points the refinement read in the seams' bands, each
-    counted once (the fine stage's crop). ``read``, when given, (H, W): those pixels are marked in it.
-    ``pool``: the seams are refined on its threads (each seam's work is its own; the marks in ``read`` only
-    ever set pixels), the result in the seams' order."""
+    counted once (the fine stage's crop). ``read``, when given, (H, W): those pixels are marked in it. Each
+    seam's refinement is its own (:func:`refine_one`: a caller may share them out among processes)."""
     rp = params or RefineParams()
     if read is None:
         read = np.zeros(full.shape[:2], dtype=bool)
-    marked = read
-
-    def one(s: SeamCurve) -> list[SeamCurve]:
-        return _refine_one(s, full, intr, surfaces, noise_full, rp, marked)
-
     out: list[SeamCurve] = []
-    for refined in (pool.map(one, seams) if pool is not None else map(one, seams)):
-        out += refined
+    for s in seams:
+        out += refine_one(s, full, intr, surfaces, noise_full, rp, read)
     return out, int(read.sum())
 
 
-def _refine_one(s: SeamCurve, full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet,
-                noise_full: NoiseModel, rp: RefineParams, read: NDArray[np.bool_]) -> list[SeamCurve]:  # fmt: skip
-    """One seam of :func:`refine_seams`: its refined pieces (none when the full resolution does not hold it)."""
+def refine_one(s: SeamCurve, full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet,
+               noise_full: NoiseModel, rp: RefineParams, read: NDArray[np.bool_]) -> list[SeamCurve]:  # fmt: skip
+    """One seam of :func:`refine_seams`: its refined pieces (none when the full resolution does not hold it);
+    the pixels it read are marked in ``read``."""
     q, px = _near_box(full, intr, s.points, rp.band_m, read=read)
     A, B = surfaces.surfaces[s.surfaces[0]], surfaces.surfaces[s.surfaces[1]]
     if s.joint == "butt" or (A.kind == B.kind == "plane" and abs(float(A.normal @ B.normal)) > np.cos(0.17)):

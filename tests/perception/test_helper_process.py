@@ -1,0 +1,172 @@
+"""perception/helper_process.py: jobs shared with a second process come back exactly as done in this one and in
+order; both processes take some; the shared memory is gone after a run; a helper that dies or stops answering
+leaves its jobs to this process (the same results, within a bound), and a new helper takes its place."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import perception.helper_process as hp
+from perception.helper_process import HelperProcess
+
+pytestmark = pytest.mark.timeout(120)
+
+PARENT = os.getpid()
+
+
+def scaled_sum(context: dict[str, float], arrays: dict[str, np.ndarray], job: int) -> tuple[int, float, int]:
+    """Job ``job``: its number, the sum of row ``job`` of ``arrays["a"]`` times the context's scale, and the
+    process that did it (each job takes 20 ms, so that both processes get some)."""
+    time.sleep(0.02)
+    return job, float(arrays["a"][job].sum()) * context["scale"], os.getpid()
+
+
+def dies_in_helper(context: dict[str, float], arrays: dict[str, np.ndarray], job: int) -> tuple[int, float, int]:
+    """:func:`scaled_sum`, except that the helper process exits abruptly (a crash) on its first job."""
+    if os.getpid() != context["parent"]:
+        os._exit(3)
+    return scaled_sum(context, arrays, job)
+
+
+def hangs_in_helper(context: dict[str, float], arrays: dict[str, np.ndarray], job: int) -> tuple[int, float, int]:
+    """:func:`scaled_sum`, except that the helper process never answers (a hang)."""
+    if os.getpid() != context["parent"]:
+        time.sleep(3600)
+    return scaled_sum(context, arrays, job)
+
+
+def _leftover_blocks() -> list[str]:
+    shm = Path("/dev/shm")
+    return sorted(p.name for p in shm.glob("weldcell-*")) if shm.is_dir() else []
+
+
+@pytest.fixture(scope="module")
+def helper() -> HelperProcess:
+    h = HelperProcess(preload=())
+    assert h.wait_ready(60.0)
+    yield h
+    h.close()
+
+
+def _arrays() -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(7)
+    return {"a": rng.normal(size=(40, 1000)), "mask": rng.integers(0, 2, (40, 3)).astype(bool)}
+
+
+def test_jobs_shared_with_the_helper_come_back_exactly_and_in_order(helper: HelperProcess) -> None:
+    arrays, context = _arrays(), {"scale": 0.5, "parent": PARENT}
+    before = _leftover_blocks()
+    out = helper.run(scaled_sum, context, arrays, list(range(40)))
+    assert [job for job, _, _ in out] == list(range(40))
+    assert [v for _, v, _ in out] == [float(arrays["a"][k].sum()) * 0.5 for k in range(40)]  # bit for bit
+    pids = {pid for _, _, pid in out}
+    assert PARENT in pids and len(pids) == 2  # both processes took jobs
+    assert _leftover_blocks() == before  # the run's shared block is unlinked
+
+
+def test_a_single_job_or_a_helper_not_yet_started_does_everything_here() -> None:
+    h = HelperProcess(preload=())
+    try:
+        out = h.run(scaled_sum, {"scale": 2.0, "parent": PARENT}, _arrays(), list(range(6)))
+        if not h.ready:  # the helper was still starting: this process did all of them
+            assert {pid for _, _, pid in out} == {PARENT}
+        assert [v for _, v, _ in out] == [float(_arrays()["a"][k].sum()) * 2.0 for k in range(6)]
+        assert h.wait_ready(60.0)
+        (one,) = h.run(scaled_sum, {"scale": 2.0, "parent": PARENT}, _arrays(), [3])
+        assert one[2] == PARENT
+    finally:
+        h.close()
+
+
+def test_a_helper_that_dies_leaves_its_jobs_here_and_is_replaced() -> None:
+    h = HelperProcess(preload=())
+    try:
+        assert h.wait_ready(60.0)
+        arrays, context = _arrays(), {"scale": 1.0, "parent": PARENT}
+        out = h.run(dies_in_helper, context, arrays, list(range(20)))
+        assert [v for _, v, _ in out] == [float(arrays["a"][k].sum()) for k in range(20)]
+        assert {pid for _, _, pid in out} == {PARENT}
+        assert not h.ready  # stopped; the next run starts a new one
+        assert h.run(scaled_sum, context, arrays, [0, 1])[0][1] == float(arrays["a"][0].sum())
+        assert h.wait_ready(60.0)
+        out = h.run(scaled_sum, context, arrays, list(range(40)))
+        assert len({pid for _, _, pid in out}) == 2  # the new helper takes jobs again
+    finally:
+        h.close()
+
+
+def test_a_helper_that_stops_answering_is_waited_for_within_a_bound(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(hp, "WAIT_S", 0.5)
+    monkeypatch.setattr(hp, "WAIT_FACTOR", 0.0)
+    h = HelperProcess(preload=())
+    try:
+        assert h.wait_ready(60.0)
+        arrays, context = _arrays(), {"scale": 1.0, "parent": PARENT}
+        t0 = time.perf_counter()
+        out = h.run(hangs_in_helper, context, arrays, list(range(10)))
+        assert time.perf_counter() - t0 < 10.0
+        assert [v for _, v, _ in out] == [float(arrays["a"][k].sum()) for k in range(10)]
+        assert not h.ready
+    finally:
+        h.close()
+
+
+def test_the_helper_keeps_only_the_last_runs_block_mapped(helper: HelperProcess) -> None:
+    """A daemon's helper runs for months: each run's block is unmapped when the next run's arrives."""
+    assert helper._warm is not None
+    pid = helper._warm.result()
+    arrays, context = _arrays(), {"scale": 1.0, "parent": PARENT}
+    for _ in range(4):
+        out = helper.run(scaled_sum, context, arrays, list(range(40)))
+        assert pid in {p for _, _, p in out}
+    maps = Path(f"/proc/{pid}/maps").read_text()
+    assert len({line.split()[-1] for line in maps.splitlines() if "weldcell-" in line}) == 1
+
+
+def test_a_helper_whose_parent_is_killed_exits_with_it(tmp_path: Path) -> None:
+    """A daemon killed with SIGKILL cannot close its helper: the helper sees its parent gone and exits (it held
+    the daemon's output pipes open, so that whoever read them waited forever)."""
+    import signal
+    import subprocess
+    import sys
+
+    script = (
+        "from perception.helper_process import HelperProcess\n"
+        "import sys, time\n"
+        "h = HelperProcess(preload=())\n"
+        "assert h.wait_ready(60)\n"
+        "print(h._warm.result(), flush=True)\n"
+        "time.sleep(600)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        helper_pid = int(proc.stdout.readline())
+        assert Path(f"/proc/{helper_pid}").exists()
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        t0 = time.perf_counter()
+        assert proc.stdout.read() == ""  # EOF: no process holds the pipe any more
+        gone = time.perf_counter() - t0
+        assert gone < 5.0
+        deadline = time.perf_counter() + 5.0
+        while time.perf_counter() < deadline and _alive(helper_pid):
+            time.sleep(0.05)
+        assert not _alive(helper_pid)
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
