@@ -179,14 +179,14 @@ def _face_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: Su
     (within its image box grown by ``reach_m``, between its ends), less a pixel along each surface's
     boundary (a face is rounded or blurred at its edges), and their labels. Fragments of one face that the
     segmentation left apart are all among them."""
-    window = _work_window(full, intr, surfaces, curve, reach_m)
+    window = _work_window(intr, surfaces, curve, reach_m)
     if window is None:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
-    pts, inner = window
+    corner, inner = window
     lab = np.pad(inner, 1, mode="edge")
     interior = (inner >= 0) & (lab[:-2, 1:-1] == inner) & (lab[2:, 1:-1] == inner)
     interior &= (lab[1:-1, :-2] == inner) & (lab[1:-1, 2:] == inner)
-    q = np.asarray(pts[interior], dtype=np.float64)
+    q = _window_points(full, surfaces.factor, corner, interior)
     chord = curve[-1] - curve[0]
     length = float(np.linalg.norm(chord))
     along = (q - curve[0]) @ (chord / max(length, 1e-9))
@@ -198,27 +198,36 @@ def _labelled_points(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces
                      margin_m: float) -> tuple[FloatArray, NDArray[np.int32]]:  # fmt: skip
     """The full-resolution points at the work-resolution pixels of every segmented surface in ``curve``'s
     image box grown by ``margin_m``, and their labels."""
-    window = _work_window(full, intr, surfaces, curve, margin_m)
+    window = _work_window(intr, surfaces, curve, margin_m)
     if window is None:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
-    pts, lab = window
+    corner, lab = window
     mask = lab >= 0
-    q = np.asarray(pts[mask], dtype=np.float64)
+    q = _window_points(full, surfaces.factor, corner, mask)
     ok = np.isfinite(q[:, 2])
     return q[ok], lab[mask][ok]
 
 
-def _work_window(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: SurfaceSet, curve: FloatArray,
-                 margin_m: float) -> tuple[NDArray[np.float32], NDArray[np.int32]] | None:  # fmt: skip
-    """The work-resolution window around ``curve``'s pixels grown by ``margin_m``: its pixels' full-resolution
-    points (a strided view of ``full``: a boolean mask on it takes them in raster order, as np.nonzero lists
-    them) and their labels; None when the window is empty."""
-    f = surfaces.factor
-    box = _pixel_box(intr, curve, margin_m, surfaces.labels.shape, factor=f)
+def _work_window(intr: CameraIntrinsics, surfaces: SurfaceSet, curve: FloatArray,
+                 margin_m: float) -> tuple[tuple[int, int], NDArray[np.int32]] | None:  # fmt: skip
+    """The work-resolution window around ``curve``'s pixels grown by ``margin_m``: its first row and column,
+    and its pixels' labels; None when the window is empty."""
+    box = _pixel_box(intr, curve, margin_m, surfaces.labels.shape, factor=surfaces.factor)
     if box is None:
         return None
     r0, r1, c0, c1 = box
-    return full[r0 * f : r1 * f : f, c0 * f : c1 * f : f], surfaces.labels[r0:r1, c0:c1]
+    return (r0, c0), surfaces.labels[r0:r1, c0:c1]
+
+
+def _window_points(full: NDArray[np.float32], factor: int, corner: tuple[int, int],
+                   mask: NDArray[np.bool_]) -> FloatArray:  # fmt: skip
+    """The full-resolution points (float64, in raster order) of the work-resolution pixels ``mask`` of a
+    window whose first row and column are ``corner``: taken by their flat indices (a boolean mask on a
+    strided view of ``full`` takes the same points two and a half times slower)."""
+    ys, xs = np.nonzero(mask)
+    width = full.shape[1]
+    flat = (ys + corner[0]) * (factor * width) + (xs + corner[1]) * factor
+    return np.take(full.reshape(-1, 3), flat, axis=0).astype(np.float64)
 
 
 def _within_segmentation(s: SeamCurve, segmented: tuple[FloatArray, NDArray[np.int32]], noise: NoiseModel,
