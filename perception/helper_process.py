@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import os
 import pickle
+import signal
 import threading
 import time
 import uuid
@@ -232,6 +233,9 @@ def _init_helper(lock: Any, ends: Any) -> None:
     of living on holding the parent's output pipes and a share of the memory."""
     global _lock, _ends
     _lock, _ends = lock, ends
+    # Ctrl-C in the terminal reaches the whole process group: the parent stops the helper (or the watch below
+    # sees the parent gone), and the helper does not die on its own with a traceback on the operator's screen
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), name="helper-parent-watch", daemon=True).start()
 
 

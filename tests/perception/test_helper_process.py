@@ -170,3 +170,16 @@ def _alive(pid: int) -> bool:
     except FileNotFoundError:
         return False
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def test_ctrl_c_in_the_terminal_does_not_kill_the_helper(helper: HelperProcess) -> None:
+    """SIGINT reaches every process of the terminal's group: the helper ignores it (its parent decides)."""
+    import signal
+
+    assert helper._warm is not None
+    pid = helper._warm.result()
+    os.kill(pid, signal.SIGINT)
+    time.sleep(0.3)
+    assert _alive(pid) and helper.ready
+    out = helper.run(scaled_sum, {"scale": 1.0, "parent": PARENT}, _arrays(), list(range(40)))
+    assert pid in {p for _, _, p in out}
