@@ -212,7 +212,10 @@ def plot(report: BenchReport, path: str) -> None:
     ax.set_xlabel("voxel size (mm)")
     ax.set_ylabel("RMSE (mm)")
     ax.set_title("Voxel-size sweep (stereo noise)")
-    ax.legend(fontsize=8)
+    if report.sweep:
+        ax.legend(fontsize=8)
+    else:  # --sweep '': an empty panel says so (a legend of nothing is a matplotlib warning on the user's screen)
+        ax.text(0.5, 0.5, "no sweep run", ha="center", va="center", transform=ax.transAxes)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
