@@ -19,6 +19,7 @@ from perception.fine.gap_profile import gap_edges
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
 from perception.fits import median
+from perception.organized import points_at
 
 
 @dataclass(frozen=True)
@@ -338,15 +339,14 @@ def _outline_gaps(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: S
     (y0, y1, x0, x1), filled, inner = window
     # the plane's residual at the pixels of its closed outline only (the window's others are never read)
     fy, fx = np.nonzero(filled)
-    pts = full[fy + y0, fx + x0].astype(np.float64)
+    pts = points_at(full, fy + y0, fx + x0)
     z = pts[:, 2]
     res = np.einsum("ik,k->i", np.nan_to_num(pts), s.normal) + s.offset
     sig = noise_full.sigma_m(np.where(np.isfinite(z), z, s.z_m))
     hole = inner[fy, fx] & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
     on_plane = pts[np.isfinite(z) & (np.abs(res) <= 4.0 * sig)]
-    win = full[y0:y1, x0:x1]
     px = (fx + x0, fy + y0)
-    found = _gaps_from_holes(hole, px, intr, s, on_plane, win, noise_full, gp)
+    found = _gaps_from_holes(hole, px, intr, s, on_plane, (full, (y0, y1, x0, x1)), noise_full, gp)
     if not found and color_rgb is not None:
         # the depth shows no gap here: one narrower than the sensor resolves may still show as shadow (the
         # depth places a gap it resolves better: seen obliquely, the shadow takes in the far edge's face)
@@ -356,15 +356,17 @@ def _outline_gaps(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: S
         deep = cv2.erode(filled.astype(np.uint8), np.ones((2 * DARK_MARGIN_PX + 1,) * 2, np.uint8)).astype(bool)
         on_line = deep[fy, fx] & dark_line(dark[0][y0:y1, x0:x1], filled)[fy, fx]
         if (on_line & ~hole).sum() >= 15:
-            found = _gaps_from_holes(hole | on_line, px, intr, s, on_plane, win, noise_full, gp)
+            found = _gaps_from_holes(hole | on_line, px, intr, s, on_plane, (full, (y0, y1, x0, x1)), noise_full, gp)
     return found
 
 
 def _gaps_from_holes(hole: NDArray[np.bool_], px: tuple[NDArray[np.int64], NDArray[np.int64]],
-                     intr: CameraIntrinsics, s: Surface, on_plane: FloatArray, win: NDArray[np.float32],
+                     intr: CameraIntrinsics, s: Surface, on_plane: FloatArray,
+                     window: tuple[NDArray[np.float32], tuple[int, int, int, int]],
                      noise_full: NoiseModel, gp: InnerGapParams) -> list[SeamCurve]:  # fmt: skip
     """The butt seams along the lines of ``hole`` pixels (of the plane's outline, at pixel columns and rows
-    ``px``) on plane ``s``; ``on_plane``: its points, ``win``: the full-resolution window it lies in."""
+    ``px``) on plane ``s``; ``on_plane``: its points; ``window``: the organized cloud and the window (y0, y1,
+    x0, x1) of it that the outline lies in."""
     if hole.sum() < 15:
         return []
     # the hole pixels' rays (only theirs: the whole image's would cost more than the rest of the step)
@@ -374,7 +376,9 @@ def _gaps_from_holes(hole: NDArray[np.bool_], px: tuple[NDArray[np.int64], NDArr
     lines = _gap_lines(g_all, s.normal, gp, rng=np.random.default_rng(0))
     if not lines:
         return []
-    seen = win[np.isfinite(win[..., 2])].astype(np.float64)  # every point in the window, for the strip test
+    full, (y0, y1, x0, x1) = window
+    ys, xs = np.nonzero(np.isfinite(full[y0:y1, x0:x1, 2]))
+    seen = points_at(full, ys + y0, xs + x0)  # every point in the window, for the strip test
     out = []
     for g, u in lines:
         seam = _gap_between(g, u, s, on_plane, seen, noise_full, gp, all_holes=g_all)

@@ -13,6 +13,7 @@ from perception.organized import (
     normal_edges,
     organized_normals,
     pixel_angle_rad,
+    points_at,
     smooth_points,
 )
 
@@ -62,3 +63,16 @@ def test_pixel_angle_and_downsampling() -> None:
     small = downsample_organized(pts, 4)
     assert small.shape == (10, 15, 3) and np.array_equal(small[1, 2], pts[4, 8])
     assert downsample_organized(pts, 1) is pts
+
+
+def test_points_at_are_the_pixels_points_in_order_as_float64() -> None:
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(40, 60, 3)).astype(np.float32)
+    pts[5, 7] = np.nan
+    rows = np.array([5, 0, 39, 12, 12], dtype=np.intp)
+    cols = np.array([7, 0, 59, 3, 4], dtype=np.intp)
+    got = points_at(pts, rows, cols)
+    assert got.dtype == np.float64 and got.shape == (5, 3)
+    assert np.array_equal(got, pts[rows, cols].astype(np.float64), equal_nan=True)
+    assert np.isnan(got[0]).all() and got[2].tolist() == pts[39, 59].astype(np.float64).tolist()
+    assert points_at(pts, rows[:0], cols[:0]).shape == (0, 3)
