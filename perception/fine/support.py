@@ -249,7 +249,11 @@ def footprint_share(xy: FloatArray, of: FloatArray, grow_m: float = FOOTPRINT_GR
     hull grown by ``grow_m`` (both dropped onto one plane, in its own axes)."""
     from scipy.spatial import ConvexHull, Delaunay, QhullError
 
-    grown = np.vstack([of + step for step in grow_m * np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])])
+    try:  # the grown hull's corners are the hull's corners grown (a Minkowski sum): grow only those
+        base = of[ConvexHull(of).vertices]
+    except QhullError:  # too few or collinear points: grown, they still span an area
+        base = of
+    grown = np.vstack([base + step for step in grow_m * np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])])
     try:
         hull = grown[ConvexHull(grown).vertices]
         return float(np.mean(Delaunay(hull).find_simplex(xy) >= 0))
