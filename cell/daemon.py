@@ -141,8 +141,9 @@ class Daemon:
             self.cell = cell if cell is not None else build_cell(config, start_simulators=start_simulators)
             if self._own_cell:
                 self.cell.connect()
-            # the detector's second process starts now and warms up while the daemon waits for its first job
-            self.helper = HelperProcess() if config.detection.helper_process else None
+            # the surfaces method's second process starts now and warms up while the daemon waits for its first job
+            uses_helper = config.detection.helper_process and config.detection.method == "surfaces"
+            self.helper = HelperProcess() if uses_helper else None
             self.runner = JobRunner(self.cell, journal=self.journal, status_image=self.status_image,
                                     helper=self.helper)  # fmt: skip
             self.runner.switch_arc_off()  # the previous process may have died with the arc on

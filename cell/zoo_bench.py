@@ -29,6 +29,7 @@ import os
 import statistics
 import time
 from collections.abc import Callable, Sequence
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -388,9 +389,13 @@ def run_zoo(
     scores: list[CaptureScore] = []
     tasks = [(str(cache_dir), f, s, method, sensor) for f, s in plan]
     if jobs <= 1:
-        # one capture at a time, as on the cell: the detector's helper process takes the second core
-        with HelperProcess() as helper:
-            helper.wait_ready()  # started before the first capture is timed
+        # one capture at a time, as on the cell: the surfaces method's helper process takes the second core
+        from perception.detect import DetectParams
+
+        uses_helper = (method or DetectParams().method) == "surfaces"
+        with HelperProcess() if uses_helper else nullcontext() as helper:
+            if helper is not None:
+                helper.wait_ready()  # started before the first capture is timed
             for k, t in enumerate(tasks):
                 scores.append(_work(t, helper))
                 if progress:
