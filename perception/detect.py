@@ -408,7 +408,11 @@ def _detect_cloud_surfaces(cloud: PointCloud, p: DetectParams, spacing: float) -
                   X_base_tool=view.X_cloud_camera, X_tool_camera=np.eye(4), source=cloud.source)  # fmt: skip
     # the virtual camera looks at the cloud's middle, not at a part: without prompts every surface counts
     p = replace(p, z_range_m=(0.0, np.inf), workspace_min_m=None, workspace_max_m=None, unprompted="all")
-    res = detect_surfaces(cap, p, organized=view.organized)
+    try:
+        res = detect_surfaces(cap, p, organized=view.organized)
+    except NoSeamFound as err:
+        err.artifacts["viewpoint"] = viewpoint.round(4).tolist()  # where the cloud was looked at from: a picture of
+        raise  # why nothing was found shows it from there
     info = res.info | {"spacing_m": round(spacing, 5), "viewpoint": viewpoint.round(4).tolist(),
                        "view_px": [w, h]}  # fmt: skip
     if res.info.get("support"):

@@ -56,7 +56,8 @@ VALIDATED_VOXEL_MM = (3.0, 5.0)  # bench voxel sweep (ribs, pipe, stereo): every
 
 def _add_detect_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", help="write seams.json here")
-    p.add_argument("--overlay", help="write the overlay PNG here")
+    p.add_argument("--overlay", help="write the overlay PNG here (a point cloud: its plan, side and detector's views "
+                   "with the seams), also when no seam is found")
     p.add_argument("--ply", help="write the kept (cropped) points and the seam paths as a PLY here")
     p.add_argument("--no-crop", action="store_true", help="skip the ROI crop (fine stage on the whole cloud)")
     p.add_argument("--segmenter", choices=("default", "fastsam"), default="default")
@@ -135,6 +136,16 @@ def make_segmenter(args: argparse.Namespace) -> Any:
     return GraphSegmenter()
 
 
+def _cloud_overlay(path: str, cloud: Any, result: Any, title: str, viewpoint: Any) -> None:
+    """A cloud's overlay (:func:`cell.cloud_picture.draw_cloud`): its views with ``result``'s seams (none when
+    ``result`` is None) in red."""
+    from cell.cloud_picture import draw_cloud
+
+    seams = () if result is None else result.seams
+    draw_cloud(cloud, [s.points for s in seams], [s.joint for s in seams], path, title=title, viewpoint=viewpoint)
+    print(f"overlay    -> {path}", file=sys.stderr)
+
+
 def run_detect(args: argparse.Namespace) -> int:
     if len(args.capture) > 1 or args.out_dir or args.jobs is not None or args.ray:
         from cell.commands.detect_batch import run_batch
@@ -155,7 +166,15 @@ def detect_one(args: argparse.Namespace) -> int:
     capture = None
     if src.is_file() or src.suffix.lower() in (".ply", ".pcd", ".npy"):
         cloud = read_point_cloud(src)
-        result = detect_cloud(cloud, replace(params, crop=False), auto_voxel=args.voxel_mm is None)
+        try:
+            result = detect_cloud(cloud, replace(params, crop=False), auto_voxel=args.voxel_mm is None)
+        except NoSeamFound as err:
+            if args.overlay:  # the cloud as the detector saw it, and why nothing came of it
+                _cloud_overlay(args.overlay, cloud, None, f"{src.name}: {err}", err.artifacts.get("viewpoint"))
+            raise
+        if args.overlay:
+            _cloud_overlay(args.overlay, cloud, result, f"{src.name}: {len(result.seams)} seam(s)",
+                           result.info.get("viewpoint"))  # fmt: skip
     else:
         capture = load_capture(src)
         try:
