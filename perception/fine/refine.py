@@ -355,8 +355,8 @@ def _fit_faces(s: SeamCurve, near: tuple[FloatArray, FloatArray, FloatArray, Flo
         if last is not None and all(np.array_equal(x, y) for x, y in zip(chosen, last, strict=True)):
             break  # the same points as the last refit: it would give the same planes, line and sides again
         last = chosen
-        a = _refit(a, A, q[on_a], fa, weight_beyond)
-        b = _refit(b, B, q[on_b], fb, weight_beyond)
+        a = _refit(a, A, q[on_a], fa, weight_beyond, noise)
+        b = _refit(b, B, q[on_b], fb, weight_beyond, noise)
         line = plane_line(a, b, 0.5 * (p0 + p1), along=u)
         if line is None:
             return None
@@ -501,10 +501,25 @@ def _fragments(groups: list[tuple[int, NDArray[np.intp]]], res: FloatArray, sig:
     return out
 
 
-def _refit(S: Surface, S0: Surface, near: FloatArray, far: FloatArray, weight_far: float) -> Surface:
-    """``S`` refitted on ``near`` (weight 1) and ``far`` (weight ``weight_far``), normal on ``S0``'s side."""
-    pts = np.concatenate([near, far])
-    n, off = _robust_plane_fit(pts, np.concatenate([np.ones(len(near)), np.full(len(far), weight_far)]))
+def _refit(S: Surface, S0: Surface, near: FloatArray, far: FloatArray, weight_far: float,
+           noise: NoiseModel | None = None) -> Surface:  # fmt: skip
+    """``S`` refitted on ``near`` (weight 1) and ``far`` (weight ``weight_far``), normal on ``S0``'s side. With
+    the ``noise`` model: refitted on the points of the plane most of ``near`` lie on instead, when the fit
+    leaves too many of them outside the noise across it, and that plane holds more and leaves out points on
+    one side of it only (:mod:`perception.fine.dominant_plane`: another surface close beside a narrow face)."""
+    from perception.fine.dominant_plane import dominant_plane, one_sided, within_noise
+
+    def fit(a: FloatArray, b: FloatArray) -> tuple[FloatArray, float]:
+        return _robust_plane_fit(np.concatenate([a, b]), np.concatenate([np.ones(len(a)), np.full(len(b), weight_far)]))
+
+    n, off = fit(near, far)
+    start = None if noise is None else dominant_plane(near, n, off, noise)
+    if start is not None and noise is not None:
+        on_near, on_far = within_noise(near, *start, noise), within_noise(far, *start, noise)
+        n2, off2 = fit(near[on_near], far[on_far])
+        more = within_noise(near, n2, off2, noise).sum() > within_noise(near, n, off, noise).sum()
+        if more and one_sided(near, n2, off2, noise):
+            n, off = n2, off2
     if n @ S0.normal < 0:
         n, off = -n, -off
     return replace(S, normal=n, offset=off)
