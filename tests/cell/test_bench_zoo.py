@@ -92,3 +92,23 @@ def test_the_table_has_a_row_per_family_and_one_overall(
     assert rows["pipe"][:12] == ["1", "0", "1", "0", "0.000", "0", "0", "0", "0", "0/0", "1", "0"]
     assert rows["pipe"][13:16] == ["-", "-", "-"]  # no point errors: a dash, not zero
     assert rows["overall"][:4] == ["3", "1", "5", "3"] and rows["overall"][-2:] == ["1.500", "2.400"]
+
+
+def test_the_sensor_choices_are_the_zoos_sensors(capsys: pytest.CaptureFixture[str]) -> None:
+    """The parser names the sensors without importing the renderer (``weldcell --help`` stays fast); they must
+    be exactly the ones the zoo renders, so that none is offered that does not exist or left out."""
+    import argparse
+    import re
+
+    from cell.commands.bench_zoo import add_parser
+    from sim_fakes.zoo import SENSORS
+
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers())
+    for name in SENSORS:
+        assert parser.parse_args(["zoo", "--sensor", name]).sensor == name
+    with pytest.raises(SystemExit):
+        parser.parse_args(["zoo", "--sensor", "no_such_sensor"])
+    offered = re.search(r"choose from (.*)\)", capsys.readouterr().err)
+    assert offered is not None
+    assert sorted(re.findall(r"'?(\w+)'?", offered.group(1))) == sorted(SENSORS)
