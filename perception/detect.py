@@ -410,13 +410,13 @@ def _detect_cloud_surfaces(cloud: PointCloud, p: DetectParams, spacing: float) -
     p = replace(p, z_range_m=(0.0, np.inf), workspace_min_m=None, workspace_max_m=None, unprompted="all")
     try:
         res = detect_surfaces(cap, p, organized=view.organized)
+        info = res.info | {"spacing_m": round(spacing, 5), "viewpoint": viewpoint.round(4).tolist(),
+                           "view_px": [w, h]}  # fmt: skip
+        if res.info.get("support"):
+            res = _on_the_table(res, cloud.points)
     except NoSeamFound as err:
         err.artifacts["viewpoint"] = viewpoint.round(4).tolist()  # where the cloud was looked at from: a picture of
         raise  # why nothing was found shows it from there
-    info = res.info | {"spacing_m": round(spacing, 5), "viewpoint": viewpoint.round(4).tolist(),
-                       "view_px": [w, h]}  # fmt: skip
-    if res.info.get("support"):
-        res = _on_the_table(res, cloud.points)
     return replace(res, frame="camera", info=info)
 
 
