@@ -513,10 +513,8 @@ def _refit(S: Surface, S0: Surface, near: FloatArray, far: FloatArray, weight_fa
         return _robust_plane_fit(np.concatenate([a, b]), np.concatenate([np.ones(len(a)), np.full(len(b), weight_far)]))
 
     n, off = fit(near, far)
-    start = None if noise is None else dominant_plane(near, n, off, noise)
-    if start is not None and noise is not None:
-        on_near, on_far = within_noise(near, *start, noise), within_noise(far, *start, noise)
-        n2, off2 = fit(near[on_near], far[on_far])
+    if noise is not None and (start := dominant_plane(near, n, off, noise)) is not None:
+        n2, off2 = fit(near[within_noise(near, *start, noise)], far[within_noise(far, *start, noise)])
         more = within_noise(near, n2, off2, noise).sum() > within_noise(near, n, off, noise).sum()
         if more and one_sided(near, n2, off2, noise):
             n, off = n2, off2
