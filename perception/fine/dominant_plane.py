@@ -62,7 +62,7 @@ def dominant_plane(points: FloatArray, normal: FloatArray, offset: float,
     q = p[:: max(1, -(-len(p) // SCORE_POINTS))]
     tol = INLIER_SIGMAS * normal_sigma(q, normal, noise)  # the noise across faces near this one's tilt
     rng = np.random.default_rng(0)
-    tri = q[np.array([rng.choice(len(q), 3, replace=False) for _ in range(HYPOTHESES)])]  # (H, 3, 3)
+    tri = q[rng.integers(0, len(q), (HYPOTHESES, 3))]  # (H, 3, 3); a repeated point's triangle has no normal
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(n, axis=1)
     ok = norm > 1e-12
