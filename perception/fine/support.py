@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from perception.fine.types import FloatArray, NoiseModel, Surface, SurfaceSet
 
 ABOVE_SHARE = 0.97  # at least this share of all points lies on or above the support
-MIN_SHARE = 0.08  # and it holds at least this share of the labelled pixels
+MIN_SHARE = 0.08  # and it holds at least this share of the labelled pixels (all its pieces together)
 FLATNESS_M = 0.001  # pieces of the support plane agree this well (a welding table is flat to a fraction of this)
 BEHIND_SIGMA = 4.0  # a point more than this many sigma (and the flatness) behind a plane lies behind it: the
 # support has nothing behind it (a lap's upper plate, 6 mm over the lower one, is not the table)
@@ -58,12 +58,15 @@ def find_support(
     labelled = int((surfaces.labels >= 0).sum())
     qualify: dict[int, frozenset[int]] = {}  # each qualifying plane's label: the labels of all its pieces
     for s in surfaces.surfaces:
-        if s.kind != "plane" or s.n_points < MIN_SHARE * labelled:
+        if s.kind != "plane":
+            continue
+        # the share is the whole plane's: a table seen between and around the parts is in several pieces
+        pieces = _pieces(surfaces, s, noise)
+        if sum(surfaces.surfaces[k].n_points for k in pieces) < MIN_SHARE * labelled:
             continue
         res = q @ s.normal + s.offset
         if np.mean((res >= -behind)[on_surface]) < ABOVE_SHARE:
             continue
-        pieces = _pieces(surfaces, s, noise)
         mine = np.isin(surfaces.labels, sorted(pieces))
         if _carries(p, surfaces, noise, pieces, mine, q[res > tol]) or _touches(surfaces, noise, pieces, mine, s):
             qualify[s.label] = pieces
