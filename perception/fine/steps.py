@@ -70,9 +70,9 @@ def step_seams(
         # upper: the plane on the camera side of the other by a plate's thickness
         h_ab = float(median(B.residual(pa)))  # A's points above B
         if sp.min_step_m <= h_ab <= sp.max_step_m:
-            up, low, pu, pl, h = A, B, pa, pb, h_ab
+            up, low, pu, h = A, B, pa, h_ab
         elif sp.min_step_m <= -h_ab <= sp.max_step_m:
-            up, low, pu, pl, h = B, A, pb, pa, -h_ab
+            up, low, pu, h = B, A, pb, -h_ab
         else:
             continue
         if up.label in support or low.label in support:
@@ -85,9 +85,9 @@ def step_seams(
             continue
         runs = _edge_runs(pu, low.normal, 3.0 * float(noise.spacing_m(z)))
         for run in runs:
-            # one straight edge (a lap's): the lower plate's contact beside it says which way is out; several
-            # (a pad's sides): the upper plate lies inside each
-            outward = pl.mean(axis=0) if len(runs) == 1 else 2.0 * pu[run].mean(axis=0) - up.centroid
+            # the upper plate lies inside each of its edges (a lap's one, a pad's sides). Not the lower plate's
+            # contact: it lies under the edge, a plate's thickness down, and beside it by the noise alone
+            outward = 2.0 * pu[run].mean(axis=0) - up.centroid
             seam = _step_along(pu[run], outward, up, low, h, full, intr, noise_full, sp, read)
             if seam is not None and not any(_same_line(seam, o) for o in out):
                 out.append(seam)
