@@ -60,8 +60,12 @@ def find_support(
     for s in surfaces.surfaces:
         if s.kind != "plane":
             continue
-        # the share is the whole plane's: a table seen between and around the parts is in several pieces
+        # the share is the whole plane's: a table seen between and around the parts is in several pieces. A
+        # plane is judged from its largest piece (a sliver's own plane, tilted by its noise, may pass through
+        # a larger plane's centroid and take it for a piece: that plane is judged on its own pieces)
         pieces = _pieces(surfaces, s, noise)
+        if max(pieces, key=lambda k: (surfaces.surfaces[k].n_points, -k)) != s.label:
+            continue
         if sum(surfaces.surfaces[k].n_points for k in pieces) < MIN_SHARE * labelled:
             continue
         res = q @ s.normal + s.offset
