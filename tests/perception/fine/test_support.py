@@ -282,3 +282,28 @@ def test_a_table_seen_in_pieces_each_under_the_share_is_the_support() -> None:
     assert all(s.n_points < share for s in surfs[:3]) and sum(s.n_points for s in surfs[:3]) > share
     nm = NoiseModel(sigma_1m_m=1e-4 / 0.64, floor_m=5e-5, pixel_angle_rad=0.001)
     assert find_support(p, SurfaceSet(labels, 1, surfs), nm) == frozenset({0, 1, 2})
+
+
+def test_a_slivers_plane_through_the_lower_plates_centroid_does_not_make_the_lower_plate_a_support() -> None:
+    # butted plates as in the XiaoyuChangeTheWorld frame: a 4.7 mm step across a 4 mm gap, no table. A sliver of
+    # mixed pixels in the gap, 1.3 mm over the lower plate and touching the upper one along 40 mm, fits a plane
+    # under a degree off that passes through the lower plate's centroid: the lower plate is a piece of the
+    # sliver's plane (not the sliver one of the lower plate's). Judged from the sliver, the two held 8% of the
+    # image and touched the upper plate: the lower plate was taken for the support, and no seam was found
+    from perception.fine.types import Surface, SurfaceSet
+
+    yy, xx = np.mgrid[0:200, 0:300]
+    gap = (xx >= 60) & (xx < 65)
+    p, surf, nm = _two_levels(0.0047, xx < 60, 1e-4, gap)
+    sliver = gap & (yy >= 75) & (yy < 125)
+    z = 0.8 - 0.0013
+    p[sliver] = np.dstack([(xx - 150) * 0.001 * z, (yy - 100) * 0.001 * z, np.full(xx.shape, z)])[sliver]
+    labels = surf.labels.copy()
+    labels[sliver] = 2
+    low = surf.surfaces[0]
+    low_c, own_c = p[labels == 0].mean(axis=0), p[sliver].mean(axis=0)
+    n = np.cross([0.0, 1.0, 0.0], low_c - own_c)  # the plane through both centroids, level along the gap
+    n = n / np.linalg.norm(n) * np.sign(n @ low.normal)
+    s2 = Surface(2, "plane", n, -float(n @ own_c), 1e-4, int(sliver.sum()), own_c, float(own_c[2]))
+    assert np.degrees(np.arccos(n @ low.normal)) < 3.0 and abs(float(s2.residual(low_c[None])[0])) < 1e-9
+    assert find_support(p, SurfaceSet(labels, 1, (*surf.surfaces, s2)), nm) == frozenset()
