@@ -57,13 +57,14 @@ def find_support(
     on_surface = surfaces.labels.reshape(-1)[sample] >= 0
     labelled = int((surfaces.labels >= 0).sum())
     qualify: dict[int, frozenset[int]] = {}  # each qualifying plane's label: the labels of all its pieces
+    pieces_of = _plane_pieces(surfaces, noise)
     for s in surfaces.surfaces:
         if s.kind != "plane":
             continue
         # the share is the whole plane's: a table seen between and around the parts is in several pieces. A
         # plane is judged from its largest piece (a sliver's own plane, tilted by its noise, may pass through
         # a larger plane's centroid and take it for a piece: that plane is judged on its own pieces)
-        pieces = _pieces(surfaces, s, noise)
+        pieces = pieces_of[s.label]
         if max(pieces, key=lambda k: (surfaces.surfaces[k].n_points, -k)) != s.label:
             continue
         if sum(surfaces.surfaces[k].n_points for k in pieces) < MIN_SHARE * labelled:
@@ -192,19 +193,25 @@ def _flatness(noise: NoiseModel, z: FloatArray | float) -> FloatArray:
     return np.asarray(FLATNESS_M + BEHIND_SIGMA * noise.structure_1m_m * np.square(z))
 
 
-def _pieces(surfaces: SurfaceSet, S: Surface, noise: NoiseModel) -> frozenset[int]:
-    """The labels of plane ``S`` and of every other piece of the same plane (the table seen on both sides of
-    the part)."""
-    same = {S.label}
-    for s in surfaces.surfaces:
-        parallel = s.kind == "plane" and s.label != S.label and float(s.normal @ S.normal) > np.cos(np.radians(3.0))
-        # the same plane: the piece's mean within a table's flatness of the plane (its noise averages out over
-        # its points, the sensor's structured error does not); a plate lying on the table is its thickness above it
-        if parallel and abs(float(S.residual(s.centroid[None])[0])) <= float(_flatness(noise, s.z_m)) + 3.0 * float(
-            noise.sigma_m(s.z_m)
-        ) / np.sqrt(max(s.n_points, 1)):
-            same.add(s.label)
-    return frozenset(same)
+def _plane_pieces(surfaces: SurfaceSet, noise: NoiseModel) -> dict[int, frozenset[int]]:
+    """Per plane's label: the labels of it and of every other piece of the same plane (the table seen on both
+    sides of the part), for all planes at once (every pair of planes is compared: a loop per plane over all
+    the others grew with the square of their number in Python)."""
+    planes = [s for s in surfaces.surfaces if s.kind == "plane"]
+    if not planes:
+        return {}
+    labels = np.array([s.label for s in planes])
+    normal = np.array([s.normal for s in planes])  # (k, 3)
+    centroid = np.array([s.centroid for s in planes])
+    z = np.array([s.z_m for s in planes])
+    n = np.maximum(np.array([s.n_points for s in planes]), 1)
+    parallel = normal @ normal.T > np.cos(np.radians(3.0))  # [i, j]: plane j is parallel to plane i
+    # the same plane: the piece's mean within a table's flatness of the plane (its noise averages out over its
+    # points, the sensor's structured error does not); a plate lying on the table is its thickness above it
+    res = np.abs(np.einsum("jk,ik->ij", centroid, normal) + np.array([s.offset for s in planes])[:, None])
+    same = parallel & (res <= _flatness(noise, z) + 3.0 * noise.sigma_m(z) / np.sqrt(n))
+    np.fill_diagonal(same, True)
+    return {int(labels[i]): frozenset(labels[same[i]].tolist()) for i in range(len(planes))}
 
 
 def _carries(p: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, pieces: frozenset[int],
