@@ -162,6 +162,8 @@ def _bridge_scan_lines(organized: NDArray[np.float32], f: float) -> NDArray[np.f
 
     def at(a: NDArray[Any], dy: NDArray[np.int64] | int, dx: NDArray[np.int64] | int) -> NDArray[Any]:
         """``a`` (padded) at each pixel moved by (dy, dx) pixels (at most the padding)."""
+        if isinstance(dy, int) and isinstance(dx, int):  # one shift for all: a slice, not a gather
+            return a[pad + dy : pad + dy + H, pad + dx : pad + dx + W]
         return a[pad + np.arange(H)[:, None] + dy, pad + np.arange(W)[None, :] + dx]
 
     def run(mask: NDArray[np.bool_], dy: int, dx: int) -> NDArray[np.int64]:
@@ -303,10 +305,10 @@ def _hidden_share(p: FloatArray, eye: FloatArray, middle: FloatArray, spacing: f
     col = np.floor((u @ x) / w / pix).astype(np.int64)
     row = np.floor((u @ y) / w / pix).astype(np.int64)
     key = (col - col.min()) * (int(row.max() - row.min()) + 1) + (row - row.min())
-    order = np.lexsort((r, key))
+    order = np.argsort(key)  # by pixel (the order within a pixel does not matter: its nearest is its minimum)
     ks, rs = key[order], r[order]
-    first = np.r_[True, ks[1:] != ks[:-1]]
-    nearest = rs[first][np.cumsum(first) - 1]
+    first = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+    nearest = np.repeat(np.minimum.reduceat(rs, first), np.diff(np.r_[first, len(rs)]))
     return float(np.mean(rs - nearest > HIDDEN_DEPTH_SPACINGS * spacing))
 
 

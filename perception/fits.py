@@ -172,7 +172,7 @@ def neighbour_components(points: FloatArray, k: int, *, tree: Any = None) -> NDA
     k = min(k, n - 1)
     if k < 1:
         return np.zeros(n, np.int64)
-    _, idx = (kdtree(points) if tree is None else tree).query(points, k=k + 1)
+    _, idx = (kdtree(points) if tree is None else tree).query(points, k=k + 1, workers=2)
     return _edge_components(n, np.repeat(np.arange(n), k), idx[:, 1:].ravel())
 
 
