@@ -346,7 +346,8 @@ def _outline_gaps(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: S
     hole = inner[fy, fx] & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
     on_plane = pts[np.isfinite(z) & (np.abs(res) <= 4.0 * sig)]
     px = (fx + x0, fy + y0)
-    found = _gaps_from_holes(hole, px, intr, s, on_plane, (full, (y0, y1, x0, x1)), noise_full, gp)
+    area: _Window = (full, (y0, y1, x0, x1), [])  # its points are read once, by the first search with lines
+    found = _gaps_from_holes(hole, px, intr, s, on_plane, area, noise_full, gp)
     if not found and color_rgb is not None:
         # the depth shows no gap here: one narrower than the sensor resolves may still show as shadow (the
         # depth places a gap it resolves better: seen obliquely, the shadow takes in the far edge's face)
@@ -356,17 +357,21 @@ def _outline_gaps(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: S
         deep = cv2.erode(filled.astype(np.uint8), np.ones((2 * DARK_MARGIN_PX + 1,) * 2, np.uint8)).astype(bool)
         on_line = deep[fy, fx] & dark_line(dark[0][y0:y1, x0:x1], filled)[fy, fx]
         if (on_line & ~hole).sum() >= 15:
-            found = _gaps_from_holes(hole | on_line, px, intr, s, on_plane, (full, (y0, y1, x0, x1)), noise_full, gp)
+            found = _gaps_from_holes(hole | on_line, px, intr, s, on_plane, area, noise_full, gp)
     return found
 
 
+# the organized cloud, the window (y0, y1, x0, x1) of it an outline lies in, and the window's points once read
+_Window = tuple[NDArray[np.float32], tuple[int, int, int, int], list[FloatArray]]
+
+
 def _gaps_from_holes(hole: NDArray[np.bool_], px: tuple[NDArray[np.int64], NDArray[np.int64]],
-                     intr: CameraIntrinsics, s: Surface, on_plane: FloatArray,
-                     window: tuple[NDArray[np.float32], tuple[int, int, int, int]],
+                     intr: CameraIntrinsics, s: Surface, on_plane: FloatArray, window: _Window,
                      noise_full: NoiseModel, gp: InnerGapParams) -> list[SeamCurve]:  # fmt: skip
     """The butt seams along the lines of ``hole`` pixels (of the plane's outline, at pixel columns and rows
-    ``px``) on plane ``s``; ``on_plane``: its points; ``window``: the organized cloud and the window (y0, y1,
-    x0, x1) of it that the outline lies in."""
+    ``px``) on plane ``s``; ``on_plane``: its points; ``window``: the organized cloud, the window of it that
+    the outline lies in, and its points once read (appended to on first use: the search is run again with
+    the colour image's dark lines, on the same window, and a large plate's window holds millions of them)."""
     if hole.sum() < 15:
         return []
     # the hole pixels' rays (only theirs: the whole image's would cost more than the rest of the step)
@@ -376,9 +381,11 @@ def _gaps_from_holes(hole: NDArray[np.bool_], px: tuple[NDArray[np.int64], NDArr
     lines = _gap_lines(g_all, s.normal, gp, rng=np.random.default_rng(0))
     if not lines:
         return []
-    full, (y0, y1, x0, x1) = window
-    ys, xs = np.nonzero(np.isfinite(full[y0:y1, x0:x1, 2]))
-    seen = points_at(full, ys + y0, xs + x0)  # every point in the window, for the strip test
+    full, (y0, y1, x0, x1), read = window
+    if not read:
+        ys, xs = np.nonzero(np.isfinite(full[y0:y1, x0:x1, 2]))
+        read.append(points_at(full, ys + y0, xs + x0))  # every point in the window, for the strip test
+    seen = read[0]
     out = []
     for g, u in lines:
         seam = _gap_between(g, u, s, on_plane, seen, noise_full, gp, all_holes=g_all)
