@@ -34,6 +34,10 @@ class FoldParams:
 SHALLOW_TURN_RAD = np.radians(80.0)
 CAMERA_DOWN = np.array([0.0, 0.0, -1.0])  # "up" with no support: as though the camera looked straight down
 MIN_TEE_POINTS = 20  # a face goes on past another plane when this many of its points lie beyond it
+# a "plate" whose points lie on a cylinder (this share of them within three sigma) is a strip of the cylinder's
+# own surface (see _plane_cylinder); a plate reaches out from a pipe's foot, off the cylinder
+ON_CYLINDER_SHARE = 0.8
+PLATE_SAMPLE = 2000  # a plate's points are judged on about this many of them
 
 
 def rays_onto(x: FloatArray, s: Surface) -> FloatArray:
@@ -113,7 +117,9 @@ def fold_seams(
         elif A.kind != B.kind:
             P, C = (A, B) if A.kind == "plane" else (B, A)
             pp, pc = (pa, pb) if A.kind == "plane" else (pb, pa)
-            out += _plane_cylinder(P, C, pp, pc, noise, fp)
+            plate = p.reshape(-1, 3)[np.flatnonzero(lab.reshape(-1) == P.label)]
+            plate = plate[:: max(1, len(plate) // PLATE_SAMPLE)]
+            out += _plane_cylinder(P, C, pp, pc, plate, noise, fp)
         else:
             out += _cylinder_pair(A, B, pa, pb, noise, fp)
     return out
@@ -258,8 +264,12 @@ def ring_points(P: Surface, C: Surface, theta: FloatArray) -> tuple[FloatArray, 
     return q + t[:, None] * a, radial
 
 
-def _plane_cylinder(P: Surface, C: Surface, pp: FloatArray, pc: FloatArray, noise: NoiseModel,
+def _plane_cylinder(P: Surface, C: Surface, pp: FloatArray, pc: FloatArray, plate: FloatArray, noise: NoiseModel,
                     fp: FoldParams) -> list[SeamCurve]:  # fmt: skip
+    """The ring where cylinder ``C`` stands on plane ``P`` (``pp``, ``pc``: their points at the contact;
+    ``plate``: the plane's points, or a sample of them), clipped to where both have points along it; none
+    unless the fold is concave, the cylinder stands square to the plane, and the plane is not a strip of the
+    cylinder's own surface."""
     if abs(float(P.normal @ C.axis)) < np.cos(np.radians(30.0)):
         return []  # only a cylinder standing on the plane (a pipe on a plate) makes a ring
     z = float(median(np.vstack([pp, pc])[:, 2]))
@@ -269,6 +279,11 @@ def _plane_cylinder(P: Surface, C: Surface, pp: FloatArray, pc: FloatArray, nois
     # and the radius's own error: a pipe fitted on a few hundred pixels at 0.8 m reads a millimetre wide; a cap
     # on a pipe lies a radius inside), and the cylinder's stand above the plate
     if median(C.residual(pp)) <= -fp.concave_sigma * sig or median(P.residual(pc)) < fp.concave_sigma * sig:
+        return []
+    # nor a strip of the cylinder itself: near a rim seen at a slant (a wheel, a ring, a tube's end) the local
+    # normals bend and the fold cuts part a band of the cylinder off, a planar arc square to its axis, which the
+    # cylinder then stands "on" (all of its points lie on the cylinder; a plate's reach out from the foot)
+    if float(np.mean(np.abs(C.residual(plate)) <= 3.0 * sig)) > ON_CYLINDER_SHARE:
         return []
     n_bins = max(36, int(np.ceil(2 * np.pi * C.radius / fp.bin_m)))
     theta = (np.arange(n_bins) + 0.5) * 2 * np.pi / n_bins

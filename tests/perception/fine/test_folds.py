@@ -247,7 +247,9 @@ def test_a_pipe_whose_radius_reads_a_millimetre_wide_still_meets_its_plate_and_a
     ring = np.column_stack([np.cos(theta), np.sin(theta), np.zeros_like(theta)])
     foot = np.vstack([centre + (R + d) * ring for d in (0.0, 0.001, 0.002)])  # the plate's pixels at the pipe's foot
     side = np.vstack([centre + R * ring + h * up for h in (0.001, 0.003, 0.005)])  # the pipe's, just above the plate
-    (seam,) = _plane_cylinder(plate, pipe, foot, side, noise, FoldParams())
+    # the plate reaches 60 mm out from the pipe's foot
+    reach = np.vstack([centre + (R + d) * ring for d in np.linspace(0.0, 0.06, 31)])
+    (seam,) = _plane_cylinder(plate, pipe, foot, side, reach, noise, FoldParams())
     assert seam.kind == "curved" and seam.joint == "fillet" and len(seam.points) >= 36
     np.testing.assert_allclose(np.linalg.norm(seam.points - centre, axis=1), R + wide, atol=1e-12)  # the fitted ring
     np.testing.assert_allclose(seam.points[:, 2], 0.78, atol=1e-12)  # on the plate
@@ -255,7 +257,36 @@ def test_a_pipe_whose_radius_reads_a_millimetre_wide_still_meets_its_plate_and_a
     cap = Surface(2, "plane", up, 0.68, 0.0011, 2000, centre + 0.1 * up, 0.68)
     inside = np.vstack([centre + 0.1 * up + r * ring for r in (0.0, 0.01, 0.02)])
     below = np.vstack([centre + R * ring + h * up for h in (0.095, 0.097, 0.099)])
-    assert _plane_cylinder(cap, pipe, inside, below, noise, FoldParams()) == []
+    assert _plane_cylinder(cap, pipe, inside, below, inside, noise, FoldParams()) == []
+
+
+def test_a_strip_of_a_cylinder_by_its_rim_is_not_a_plate_it_stands_on() -> None:
+    # a wheel 1.2 m across seen from above its tread (a structured-light camera at 0.9 m): near a rim the fold cuts
+    # parted a band of the tread off, an arc of the rim circle, and fitted it as a plane square to the axis. The
+    # tread stands on that plane's camera side and the arc lies on the tread, not inside it: the ring's concave
+    # test passed and the rim was reported as a curved fillet 375 mm long. A plate reaches out from the foot
+    from perception.fine.folds import FoldParams, _plane_cylinder
+    from perception.fine.types import NoiseModel, Surface
+
+    noise = NoiseModel(sigma_1m_m=0.0004, floor_m=5e-5, pixel_angle_rad=0.002)
+    R = 0.6
+    axis = np.array([1.0, 0.0, 0.0])  # the camera looks down +z at the tread's top, 0.9 m away
+    centre = np.array([0.0, 0.0, 0.9 + R])
+    wheel = Surface(0, "cylinder", np.zeros(3), 0.0, 0.0003, 40000, centre - np.array([0.0, 0.0, R]), 0.9,
+                    axis=axis, centre=centre, radius=R)  # fmt: skip
+    theta = np.radians(np.linspace(-110.0, -70.0, 80))  # the tread's top quarter, seen from above
+    around = np.column_stack([np.zeros_like(theta), np.cos(theta), np.sin(theta)])
+    rim_x = -0.15
+    arc = np.vstack([centre + R * around + np.array([rim_x + dx, 0.0, 0.0]) for dx in (0.0, 0.001, 0.002)])
+    rim = Surface(1, "plane", axis, -rim_x, 0.0009, len(arc), arc.mean(axis=0), 0.9)  # towards the camera (x = 0)
+    tread = np.vstack([centre + R * around + np.array([rim_x + dx, 0.0, 0.0]) for dx in (0.004, 0.006, 0.008)])
+    assert float(np.median(rim.residual(tread))) > 0.0  # the tread stands on the strip's camera side ...
+    assert _plane_cylinder(rim, wheel, arc, tread, arc, noise, FoldParams()) == []
+    # ... and the same contact with a plate reaching out from it (a disc square to the axis at the rim) is a ring
+    disc = np.vstack([centre + r * around + np.array([rim_x, 0.0, 0.0]) for r in np.linspace(R - 0.3, R, 31)])
+    (seam,) = _plane_cylinder(rim, wheel, arc, tread, disc, noise, FoldParams())
+    np.testing.assert_allclose(np.linalg.norm(seam.points[:, 1:] - centre[1:], axis=1), R, atol=1e-9)
+    np.testing.assert_allclose(seam.points[:, 0], rim_x, atol=1e-12)
 
 
 @pytest.mark.parametrize("name", ["gusset", "gusset_end"])
