@@ -270,8 +270,10 @@ def sensor_side(points: FloatArray, normals: FloatArray | None = None, *, spacin
     centre = np.median(p, axis=0)
     size = max(float(np.linalg.norm(np.ptp(p, axis=0))), 0.1)
     if normals is not None and len(normals) == len(p):
-        mean = np.nanmean(np.asarray(normals, dtype=np.float64), axis=0)
-        if np.all(np.isfinite(mean)) and np.linalg.norm(mean) > 0.2:
+        n = np.asarray(normals, dtype=np.float64)
+        n = n[np.all(np.isfinite(n), axis=1)]  # a NaN normal says nothing (all of them NaN: no normals)
+        mean = n.mean(axis=0) if len(n) else np.zeros(3)
+        if np.linalg.norm(mean) > 0.2:
             return np.asarray(centre + mean / np.linalg.norm(mean) * 2.0 * size)
     z = p[:, 2]
     if np.all(z > 0) and np.percentile(np.maximum(np.abs(p[:, 0]), np.abs(p[:, 1])) / z, 98) < 1.43:

@@ -204,6 +204,24 @@ def test_a_scan_in_a_z_up_frame_is_looked_at_from_the_side_it_was_taken_from() -
     _assert_fillet_found(cloud, truth)
 
 
+def test_normals_that_are_all_nan_count_as_none_and_partly_nan_ones_by_their_finite_rows() -> None:
+    """A cloud built in code (not read from a file, which drops bad normals) may carry NaN normals: all NaN,
+    the viewpoint is the one without normals, and no warning is raised; some NaN, the finite ones decide."""
+    import warnings
+
+    scene = tee()
+    cloud, _ = _tee_cloud(scene.camera.X_world_camera)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # "Mean of empty slice" from a NaN mean was one
+        got = sensor_side(cloud, np.full(cloud.shape, np.nan))
+    assert np.array_equal(got, sensor_side(cloud))
+    up = np.tile([0.0, 0.0, 1.0], (len(cloud), 1))
+    up[::3] = np.nan
+    centre = np.median(cloud, axis=0)
+    size = float(np.linalg.norm(np.ptp(cloud, axis=0)))
+    np.testing.assert_allclose(sensor_side(cloud, up), centre + np.array([0.0, 0.0, 2.0 * size]), atol=1e-12)
+
+
 def test_a_piece_floating_clear_of_the_table_holds_no_seam(monkeypatch) -> None:
     """The tee's cloud (its table found as the support) with a bracket floating 200 mm over the table: two 60 mm
     plates meeting at a right angle, open upwards. Its fold is a v_groove 57 mm long when every surface counts;
