@@ -50,12 +50,13 @@ def run(args: argparse.Namespace) -> int:
     from sim_fakes.scenes import SCENES, get_scene, with_resolution
 
     if args.list:
-        from sim_fakes.zoo import FAMILIES
+        from sim_fakes.zoo import FAMILIES, HELD_OUT
 
         for name, factory in SCENES.items():
             scene = factory()
             print(f"{name:15s} {len(scene.seams):2d} seam(s)  {scene.description}")
         print(f"zoo families (--random): {', '.join(FAMILIES)}")
+        print(f"held-out zoo families (never tuned on; --random NAME): {', '.join(HELD_OUT)}")
         return 0
     if args.random:
         return _random(args)
@@ -96,14 +97,15 @@ def run(args: argparse.Namespace) -> int:
 
 def _random(args: argparse.Namespace) -> int:
     from perception.capture import save_capture
-    from sim_fakes.zoo import FAMILIES, SPLIT_BASE, draw_capture
+    from sim_fakes.zoo import ALL_FAMILIES, FAMILIES, SPLIT_BASE, draw_capture
 
     if not args.out:
         print("weldcell simulate: give --out DIR with --random")
         return 2
     families = list(FAMILIES) if args.random == "all" else [args.random]
-    if families[0] not in FAMILIES:
-        print(f"weldcell simulate: unknown zoo family {args.random!r}; choose one of: {', '.join(FAMILIES)}, all")
+    if families[0] not in ALL_FAMILIES:
+        print(f"weldcell simulate: unknown zoo family {args.random!r}; choose one of: {', '.join(ALL_FAMILIES)}, "
+              "all")
         return 2
     if args.seed < 0 or args.seed >= SPLIT_BASE["test"]:
         print(f"weldcell simulate: --seed counts within the split, 0 to {SPLIT_BASE['test'] - 1}")

@@ -15,7 +15,7 @@ from perception.transforms import invert_X, look_at_X, make_X, transform_points
 from sim_fakes.hull import box_corners
 from sim_fakes.render import GT_STEP_M, StereoSensor, render, second_eye, visible_ground_truth
 from sim_fakes.scenes import CYL_SIDE, CameraSetup, Part, Scene
-from sim_fakes.zoo import FAMILIES, SPLIT_BASE, ZOO_RULES, draw_capture, draw_scene, split_plan
+from sim_fakes.zoo import ALL_FAMILIES, FAMILIES, HELD_OUT, SPLIT_BASE, ZOO_RULES, draw_capture, draw_scene, split_plan
 
 from .test_contacts import hull_part
 
@@ -42,7 +42,7 @@ def clean(family: str):
     return draw_capture(family, 0, width=640, height=360, noise_free=True)
 
 
-@pytest.mark.parametrize("family", sorted(FAMILIES))
+@pytest.mark.parametrize("family", sorted(ALL_FAMILIES))
 def test_every_seam_lies_on_both_of_its_faces(family: str) -> None:
     scene, _, _ = draw_scene(family, 0)
     assert scene.seams, f"{family}: no seam drawn"
@@ -58,7 +58,7 @@ def test_every_seam_lies_on_both_of_its_faces(family: str) -> None:
         assert s.joint in JOINT_TYPES
 
 
-@pytest.mark.parametrize("family", sorted(FAMILIES))
+@pytest.mark.parametrize("family", sorted(ALL_FAMILIES))
 def test_noise_free_zoo_renders_are_exact_and_their_truth_lies_on_the_seams(family: str) -> None:
     z = clean(family)
     res = z.result
@@ -204,6 +204,29 @@ def test_a_draw_is_deterministic_and_the_splits_do_not_overlap() -> None:
     assert max(counts.values()) - min(counts.values()) <= 1
     first = split_plan("test", 24, ["pipe", "butt"])[:3]
     assert first == [("pipe", 1_000_000), ("butt", 1_000_000), ("pipe", 1_000_001)]
+    # the held-out families are drawn only when named: the default splits are the twelve tuned on
+    assert not {f for f, _ in dev + test} & set(HELD_OUT)
+    assert split_plan("test", 3, list(HELD_OUT)) == [(f, 1_000_000) for f in HELD_OUT]
+
+
+def test_the_held_out_families_are_what_they_say() -> None:
+    # a box section: four walls standing on the base, each touching two others
+    scene, _, _ = draw_scene("box_section", 0)
+    walls = [p for p in scene.parts if p.name.startswith("wall")]
+    assert len(walls) == 4 and {s.joint for s in scene.seams} <= {"fillet", "inside_corner"}
+    # a cruciform: a rib and the two halves of the rib crossing it, all on the base, each half butted to the rib
+    scene, _, _ = draw_scene("cruciform", 0)
+    assert [p.name for p in scene.parts if p.workpiece] == ["base", "rib", "cross1", "cross-1"]
+    # a leaning web: its two folds with the base are acute and obtuse, summing to 180 degrees
+    for seed in range(4):
+        scene, _, _ = draw_scene("leaning_web", seed)
+        feet = [s for s in scene.seams if {scene.parts[s.faces[0][0]].name, scene.parts[s.faces[1][0]].name}
+                == {"base", "web"}]  # fmt: skip
+        assert len(feet) == 4  # its two sides' and its two ends'
+        feet = sorted(feet, key=lambda s: -float(np.linalg.norm(s.points[-1] - s.points[0])))[:2]  # the sides'
+        angles = sorted(float(np.degrees(np.arccos(-s.into_a[0] @ s.into_b[0]))) for s in feet)
+        assert angles[0] + angles[1] == pytest.approx(180.0, abs=1e-6)
+        assert 50.0 - 1e-6 <= angles[0] <= 90.0 + 1e-6
 
 
 def test_the_median_post_filter_takes_the_median_of_the_valid_pixels_around_each_valid_one() -> None:
