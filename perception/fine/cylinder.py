@@ -154,27 +154,11 @@ def normals_follow(c: Surface, q: FloatArray, normals: FloatArray) -> bool:
     if ok.sum() < 10:
         return True
     e1, e2 = axis_basis(c.axis)
-    _, pos = span_rad(c, q[ok])
-    span = _core_span(pos)
+    span, pos = span_rad(c, q[ok])
     n = normals[ok]
     off = np.angle(np.exp(1j * (np.arctan2(n @ e2, n @ e1) - pos)))
     off = np.minimum(np.abs(off), np.pi - np.abs(off))  # normals point out of the surface or into it
     return float(median(off)) < span / 8.0
-
-
-CORE_SHARE = 0.9  # the span a face's points cover leaving out a twentieth of them at each end
-
-
-def _core_span(pos: FloatArray) -> float:
-    """The angle the middle :data:`CORE_SHARE` of the angular positions ``pos`` (rad) span, measured from the
-    largest gap between them: a few stray points (a veil of flying pixels along a wall's silhouette, which a
-    cylinder fit bent round to take in) do not widen it."""
-    ang = np.sort(pos)
-    gaps = np.diff(np.concatenate([ang, [ang[0] + 2 * np.pi]]))
-    k = int(np.argmax(gaps))
-    unwrapped = np.concatenate([ang[k + 1 :], ang[: k + 1] + 2 * np.pi])  # from the far side of the largest gap
-    lo, hi = np.quantile(unwrapped, [(1 - CORE_SHARE) / 2, (1 + CORE_SHARE) / 2])
-    return float(hi - lo)
 
 
 def turns(c: Surface, q: FloatArray, min_turn_rad: float) -> bool:

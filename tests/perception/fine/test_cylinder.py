@@ -46,28 +46,3 @@ def test_a_circle_fitted_by_distances_holds_its_radius_where_the_algebraic_fit_s
         assert np.linalg.norm(centre[:2]) < 0.0005
     assert np.mean(algebraic) < -0.00015 and abs(np.mean(geometric)) < 0.0001
     assert circle_fit_across(np.zeros((5, 3)), axis) is None
-
-
-def test_normals_that_stay_put_on_a_wall_are_not_a_cylinder_however_far_a_few_strays_reach() -> None:
-    # a new weldment (a box section's wall seen at a slant by a stereo camera): the wall's patch held a veil of
-    # flying pixels along its silhouette, and a cylinder of radius 140 mm bent round through the wall and the veil.
-    # The wall's measured normals stay put while the position turns 30 degrees across it; the veil's 5% of the
-    # points widen the span to 70 degrees, and the normals' median offset (8 degrees) passed under an eighth
-    # of that. The span of the middle 90% of the points is the wall's
-    from perception.fine.cylinder import axis_basis, normals_follow
-    from perception.fine.types import Surface
-
-    axis = np.array([0.0, 0.0, 1.0])
-    centre = np.array([0.0, 0.0, 0.6])
-    R = 0.14
-    cyl = Surface(0, "cylinder", np.zeros(3), 0.0, 0.001, 1000, centre, 0.6, axis=axis, centre=centre, radius=R)
-    e1, e2 = axis_basis(axis)
-    wall = np.radians(np.linspace(-15.0, 15.0, 950))
-    veil = np.radians(np.linspace(45.0, 55.0, 50))
-    pos = np.concatenate([wall, veil])
-    q = centre + R * (np.cos(pos)[:, None] * e1 + np.sin(pos)[:, None] * e2)
-    flat = np.tile(e1, (len(pos), 1))  # the wall's normal everywhere (the veil's own normals are as bad)
-    assert not normals_follow(cyl, q, flat)
-    # a pipe's normals turn with the position, strays or not
-    radial = np.cos(pos)[:, None] * e1 + np.sin(pos)[:, None] * e2
-    assert normals_follow(cyl, q, radial)
