@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -26,18 +27,30 @@ def scaled_sum(context: dict[str, float], arrays: dict[str, np.ndarray], job: in
     return job, float(arrays["a"][job].sum()) * context["scale"], os.getpid()
 
 
-def dies_in_helper(context: dict[str, float], arrays: dict[str, np.ndarray], job: int) -> tuple[int, float, int]:
+def dies_in_helper(context: dict[str, Any], arrays: dict[str, np.ndarray], job: int) -> tuple[int, float, int]:
     """:func:`scaled_sum`, except that the helper process exits abruptly (a crash) on its first job."""
     if os.getpid() != context["parent"]:
+        Path(context["flag"]).touch()
         os._exit(3)
+    _wait_for_the_helper(context)
     return scaled_sum(context, arrays, job)
 
 
-def hangs_in_helper(context: dict[str, float], arrays: dict[str, np.ndarray], job: int) -> tuple[int, float, int]:
+def hangs_in_helper(context: dict[str, Any], arrays: dict[str, np.ndarray], job: int) -> tuple[int, float, int]:
     """:func:`scaled_sum`, except that the helper process never answers (a hang)."""
     if os.getpid() != context["parent"]:
+        Path(context["flag"]).touch()
         time.sleep(3600)
+    _wait_for_the_helper(context)
     return scaled_sum(context, arrays, job)
+
+
+def _wait_for_the_helper(context: dict[str, Any]) -> None:
+    """In this process: wait (20 s at most) until the helper has claimed a job, so that it surely holds one
+    (on a loaded machine it took longer to claim one than this process took for all ten)."""
+    t0 = time.perf_counter()
+    while not Path(context["flag"]).exists() and time.perf_counter() - t0 < 20.0:
+        time.sleep(0.01)
 
 
 def _leftover_blocks() -> list[str]:
@@ -83,11 +96,11 @@ def test_a_single_job_or_a_helper_not_yet_started_does_everything_here() -> None
         h.close()
 
 
-def test_a_helper_that_dies_leaves_its_jobs_here_and_is_replaced() -> None:
+def test_a_helper_that_dies_leaves_its_jobs_here_and_is_replaced(tmp_path: Path) -> None:
     h = HelperProcess(preload=())
     try:
         assert h.wait_ready(60.0)
-        arrays, context = _arrays(), {"scale": 1.0, "parent": PARENT}
+        arrays, context = _arrays(), {"scale": 1.0, "parent": PARENT, "flag": str(tmp_path / "claimed")}
         out = h.run(dies_in_helper, context, arrays, list(range(20)))
         assert [v for _, v, _ in out] == [float(arrays["a"][k].sum()) for k in range(20)]
         assert {pid for _, _, pid in out} == {PARENT}
@@ -100,13 +113,14 @@ def test_a_helper_that_dies_leaves_its_jobs_here_and_is_replaced() -> None:
         h.close()
 
 
-def test_a_helper_that_stops_answering_is_waited_for_within_a_bound(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_helper_that_stops_answering_is_waited_for_within_a_bound(monkeypatch: pytest.MonkeyPatch,
+                                                                   tmp_path: Path) -> None:
     monkeypatch.setattr(hp, "WAIT_S", 0.5)
     monkeypatch.setattr(hp, "WAIT_FACTOR", 0.0)
     h = HelperProcess(preload=())
     try:
         assert h.wait_ready(60.0)
-        arrays, context = _arrays(), {"scale": 1.0, "parent": PARENT}
+        arrays, context = _arrays(), {"scale": 1.0, "parent": PARENT, "flag": str(tmp_path / "claimed")}
         t0 = time.perf_counter()
         out = h.run(hangs_in_helper, context, arrays, list(range(10)))
         assert time.perf_counter() - t0 < 10.0
