@@ -371,7 +371,7 @@ def _box_section(b: _Builder) -> Weldment:
              ((tw, d - 2 * tw), (w / 2 - tw / 2, 0.0)), ((tw, d - 2 * tw), (-w / 2 + tw / 2, 0.0)))  # fmt: skip
     for k, ((lx, ly), (x, y)) in enumerate(walls):
         b.add(f"wall{k}", box_corners(lx, ly, h), x=c * x - s * y, y=s * x + c * y, z=t, yaw=yaw)
-    return Weldment(tuple(b.parts))
+    return Weldment(tuple(b.parts), joint_of=_corner_joint)
 
 
 def _cruciform(b: _Builder) -> Weldment:
@@ -383,7 +383,7 @@ def _cruciform(b: _Builder) -> Weldment:
     b.add("rib", box_corners(length, tw, h), z=t)
     for sign in (1.0, -1.0):
         b.add(f"cross{int(sign)}", box_corners(tw, half, h), x=off, y=sign * (tw + half) / 2, z=t)
-    return Weldment(tuple(b.parts))
+    return Weldment(tuple(b.parts), joint_of=_corner_joint)
 
 
 def _leaning_web(b: _Builder) -> Weldment:
