@@ -113,12 +113,15 @@ def stray_points(points: FloatArray, spacing_m: float) -> NDArray[np.bool_]:
         return np.zeros(len(p), dtype=bool)
     cell = STRAY_GAP_SPACINGS * spacing_m
     keys = np.floor((p - p.min(axis=0)) / cell).astype(np.int64)
-    # one integer per voxel, in the rows' lexicographic order (np.unique(keys, axis=0) sorts rows as
-    # structured values: fifteen times slower on a LiDAR scan of 77k points)
-    dims = keys.max(axis=0) + 1
-    _, first, inv = np.unique((keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2], return_index=True,
-                              return_inverse=True)  # fmt: skip
-    voxels = keys[first]
+    dims = [int(d) + 1 for d in keys.max(axis=0)]
+    if dims[0] * dims[1] * dims[2] < 2**63:
+        # one integer per voxel, in the rows' lexicographic order (np.unique(keys, axis=0) sorts rows as
+        # structured values: fifteen times slower on a LiDAR scan of 77k points)
+        _, first, inv = np.unique((keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2], return_index=True,
+                                  return_inverse=True)  # fmt: skip
+        voxels = keys[first]
+    else:  # a grid too large for one integer per voxel (a far point metres off a dense part): the rows
+        voxels, inv = np.unique(keys, axis=0, return_inverse=True)
     piece = connected_components(voxels.astype(np.float64), 1.8)[inv.ravel()]  # sqrt(3) voxels: 26 neighbours
     size = np.bincount(piece)
     large = size >= max(3, STRAY_SHARE * len(p))

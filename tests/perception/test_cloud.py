@@ -136,3 +136,7 @@ def test_a_few_points_far_off_the_part_are_stray_and_a_part_in_pieces_is_not() -
     n = len(plate) + len(bracket)
     assert not stray[:n].any() and stray[n:].all()
     assert not stray_points(singles, 0.002).any()  # no piece large enough to keep: none is dropped
+    # the same with the singles 1e13 m away: a voxel grid too large to number each voxel by one int64 (its rows
+    # are compared instead), the same answer
+    far = np.vstack([plate, bracket, singles * 5e12, pair])
+    assert np.array_equal(stray_points(far, 0.002), stray)
