@@ -353,8 +353,6 @@ FAMILIES: dict[str, Callable[[_Builder], Weldment]] = {
 }
 
 
-
-
 # Held-out families: weldments of other shapes that the detector was never tuned on (drawn only when named, so
 # that the default splits stay as they were): a box section standing on a plate, a cruciform of a rib crossing
 # another, and a web leaning up to 40 degrees off the vertical (one fold acute, the other obtuse)
