@@ -37,6 +37,25 @@ def open_root(q: FloatArray, sigma: FloatArray, line0: FloatArray, u: FloatArray
     well. ``q``: (N, 3) camera-frame points near the seam (the camera at the origin), ``sigma`` their depth
     noise, ``line0``/``u`` the bevels' intersection, ``span`` the stretch along ``u`` (from ``line0``) to use,
     ``radius_m`` how far from the intersection (in the section) the profile is traced."""
+    profile = _section_profile(q, sigma, line0, u, across, faces, span, radius_m=radius_m)
+    if profile is None:
+        return None
+    bevels = profile.bevels
+    heights = np.arange(0.0, min(MAX_HEIGHT_M, 0.5 * radius_m), HEIGHT_STEP_M)
+    fixed, varying = profile.split(float(heights[-1]))  # the rays no candidate height changes cost the same at each
+    costs = fixed + np.array([varying.cost(float(h)) for h in heights])
+    lowest = np.flatnonzero(costs <= costs.min())
+    if lowest[0] == 0 or costs[0] - costs.min() < OPEN_ROOT_MIN_GAIN:
+        return None
+    h = float(np.mean(heights[lowest]))  # the middle of the best heights (whole rays change sides in steps)
+    return h / float(bevels[0][1]), h / float(bevels[1][1])
+
+
+def _section_profile(q: FloatArray, sigma: FloatArray, line0: FloatArray, u: FloatArray,
+                     across: tuple[FloatArray, FloatArray], faces: tuple[Surface, Surface],
+                     span: tuple[float, float], *, radius_m: float) -> _Profile | None:  # fmt: skip
+    """The rays of :func:`open_root`'s points in the groove's section frame; None when fewer than 50 lie within
+    ``radius_m`` of the intersection along ``span`` or a bevel does not rise from it."""
     up = faces[0].normal + faces[1].normal
     up = up - (up @ u) * u
     up = up / max(float(np.linalg.norm(up)), 1e-12)
@@ -54,14 +73,7 @@ def open_root(q: FloatArray, sigma: FloatArray, line0: FloatArray, u: FloatArray
     bevels = [b / max(float(np.linalg.norm(b)), 1e-12) for b in bevels]
     if min(float(b[1]) for b in bevels) < 0.05:
         return None  # a bevel that does not rise from the intersection: no groove to open
-    profile = _Profile(origin, ray, rng, sigma[keep], bevels)
-    heights = np.arange(0.0, min(MAX_HEIGHT_M, 0.5 * radius_m), HEIGHT_STEP_M)
-    costs = np.array([profile.cost(float(h)) for h in heights])
-    lowest = np.flatnonzero(costs <= costs.min())
-    if lowest[0] == 0 or costs[0] - costs.min() < OPEN_ROOT_MIN_GAIN:
-        return None
-    h = float(np.mean(heights[lowest]))  # the middle of the best heights (whole rays change sides in steps)
-    return h / float(bevels[0][1]), h / float(bevels[1][1])
+    return _Profile(origin, ray, rng, sigma[keep], bevels)
 
 
 class _Profile:
@@ -77,6 +89,19 @@ class _Profile:
             with np.errstate(divide="ignore", invalid="ignore"):
                 lam = -(origin @ n) / (ray @ n)
             self.on_bevel.append((lam, (origin + lam[:, None] * ray) @ b))
+
+    def split(self, h_max: float) -> tuple[float, _Profile]:
+        """The summed cost of the rays whose trace is the same at every height up to ``h_max`` (each meets the bevel
+        it meets first above that height's edge: a higher edge only takes hits away, and theirs stays the
+        nearest), and the profile of the other rays."""
+        lam_first = np.full(len(self.rng), np.inf)
+        s_first = np.full(len(self.rng), -np.inf)
+        for (lam, s), b in zip(self.on_bevel, self.bevels, strict=True):
+            nearer = np.isfinite(lam) & (lam > 0) & (s >= 0.0) & (lam < lam_first)
+            lam_first[nearer], s_first[nearer] = lam[nearer], s[nearer] * float(b[1])  # the hit's height
+        same = np.isfinite(lam_first) & (s_first >= h_max)
+        rest = _Profile(self.origin, self.ray[~same], self.rng[~same], self.sigma[~same], self.bevels)
+        return self._cost_of(self.rng[same], lam_first[same], self.sigma[same]), rest
 
     def cost(self, h: float) -> float:
         traced = np.full(len(self.rng), np.inf)
@@ -100,7 +125,11 @@ class _Profile:
         return best
 
     def _cost(self, traced: FloatArray) -> float:
-        r = (self.rng - traced) / self.sigma
+        return self._cost_of(self.rng, traced, self.sigma)
+
+    @staticmethod
+    def _cost_of(rng: FloatArray, traced: FloatArray, sigma: FloatArray) -> float:
+        r = (rng - traced) / sigma
         return float(np.where(np.isfinite(r), np.minimum(r * r, CAP_SIGMA**2), CAP_SIGMA**2).sum())
 
     def _below_gap(self, h: float, z_floor: float, x_edges: list[float], lam_gap: FloatArray) -> FloatArray:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from perception.fine.root import open_root
+from perception.fine.root import _section_profile, open_root
 from perception.fine.types import Surface
 
 BETA = np.radians(30.0)  # the bevels from the vertical
@@ -76,3 +76,17 @@ def test_a_closed_root_stays_at_the_intersection_under_noise() -> None:
     q, sig, line0 = _trace(0.0, 0.0, sigma=5e-4, seed=2)
     faces, across = _faces()
     assert open_root(q, sig, line0, np.array([0.0, 1.0, 0.0]), across, faces, (-0.05, 0.05), radius_m=0.006) is None
+
+
+def test_the_rays_no_height_changes_are_costed_once_and_the_sum_is_the_same() -> None:
+    """The split of a profile into the rays whose trace no candidate height changes (their summed cost) and the
+    others: at every height the two add up to the whole profile's cost."""
+    q, sig, line0 = _trace(0.0016, 0.001, sigma=3e-4, seed=1)
+    faces, across = _faces()
+    profile = _section_profile(q, sig, line0, np.array([0.0, 1.0, 0.0]), across, faces, (-0.05, 0.05),
+                               radius_m=0.006)  # fmt: skip
+    assert profile is not None
+    fixed, varying = profile.split(0.003)
+    assert 0 < len(varying.rng) < len(profile.rng)
+    for h in np.arange(0.0, 0.003, 2e-4):
+        assert fixed + varying.cost(float(h)) == pytest.approx(profile.cost(float(h)), rel=1e-12, abs=1e-9)
