@@ -1,11 +1,11 @@
 """Seam detection surfaces first (``DetectParams(method="surfaces")``): the pipeline of :mod:`perception.fine`.
 
 The coarse stage is geometric here: surfaces are segmented on every ``factor``-th pixel (a quarter of them
-at 1280x720, fewer for a part close to the camera: :func:`work_factor`), and only bands around the candidate
-seams are read at full resolution (the share of points left out is ``info["removed_share"]``). The image
-segmenter is not used (``segmenter`` is accepted for the same signature as :func:`perception.detect.detect`);
-the table is told apart by geometry. The operator's prompts, when given, say which surfaces are the workpiece
-(:mod:`perception.fine.workpiece`): clutter's folds are not seams.
+at 1280x720), and only bands around the candidate seams are read at full resolution (the share of points
+left out is ``info["removed_share"]``). The image segmenter is not used (``segmenter`` is accepted for the same
+signature as :func:`perception.detect.detect`); the table is told apart by geometry. The operator's prompts,
+when given, say which surfaces are the workpiece (:mod:`perception.fine.workpiece`): clutter's folds are not
+seams.
 
     noise -> surfaces -> support -> adjacency -> workpiece -> folds, gaps, grooves     (work resolution)
           -> wide folds (a swept LiDAR's captures only: perception.fine.wide_folds)
@@ -61,7 +61,7 @@ def detect_surfaces(
         if organized is None:
             organized = capture.points_camera()
     log.counts["raw"] = int(np.isfinite(organized[..., 2]).sum())
-    factor = work_factor(organized, capture.intrinsics)
+    factor = max(1, round(organized.shape[1] / 640))
     with log.step("work_image"):
         work = _work_image(organized, factor, p)
     log.counts["work"] = int(np.isfinite(work[..., 2]).sum())
@@ -106,29 +106,6 @@ def detect_surfaces(
         info=info,
         artifacts={"surfaces": surf},
     )
-
-
-WORK_WIDTH_PX = 640  # the work resolution: every k-th pixel, k the image's width over this (rounded) ...
-WORK_SPACING_M = 0.0012  # ... or coarser, so long as the samples on the part lie no farther apart than this (a
-# 1280-wide camera's every second pixel at 0.55 m, the middle of the zoo's 0.3-0.9 m; coarser, a bent panel's
-# facets turn by a fold's angle within the fold test's pixels: real pengrui frame 6 at 1.3 mm, three false seams)
-
-
-def work_factor(organized: NDArray[np.float32], intr: CameraIntrinsics) -> int:
-    """The work resolution's step in pixels: a 640-wide image's worth of them (a 1280-wide image every second
-    pixel), or a coarser step where the capture is so close that its samples at their median depth still lie
-    within :data:`WORK_SPACING_M` of each other (a part 0.3 m from the camera needs no finer samples to show a
-    3 mm rib than one 0.55 m away; the full resolution's steps are what place the seams). On the zoo's dev 400
-    (0.3-0.9 m) 57 captures are worked coarser than every second pixel: the same 693 of 696 seams, RMSE
-    0.128 -> 0.127 mm, median time 0.50 -> 0.40 s, p95 1.20 -> 0.78 s."""
-    base = max(1, round(organized.shape[1] / WORK_WIDTH_PX))
-    z = organized[::8, ::8, 2]
-    with np.errstate(invalid="ignore"):
-        z = z[np.isfinite(z) & (z > 0.0)]
-    if len(z) == 0 or intr.fx <= 0.0:
-        return base
-    spacing = float(median(z)) / float(intr.fx)  # of neighbouring pixels on a face square to the rays
-    return max(base, int(WORK_SPACING_M / spacing))
 
 
 def _work_image(organized: NDArray[np.float32], factor: int, p: DetectParams) -> NDArray[np.float64]:

@@ -10,9 +10,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from perception.capture import CameraIntrinsics
 from perception.detect import DetectParams
-from perception.detect_surfaces import WORK_SPACING_M, _duplicates, _full, _work_image, detect_surfaces, work_factor
+from perception.detect_surfaces import _duplicates, _full, _work_image, detect_surfaces
 from perception.errors import NoSeamFound
 from perception.evaluate import point_to_polyline_distance
 from perception.fine.types import NoiseModel, SeamCurve
@@ -51,28 +50,6 @@ def test_a_bare_table_has_no_seam_and_says_what_was_examined() -> None:
         detect_surfaces(bare.capture)
     surfaces = err.value.artifacts["surfaces"]
     assert len(surfaces.surfaces) == 1 and surfaces.surfaces[0].kind == "plane"
-
-
-def test_the_work_step_is_a_640_wide_images_or_coarser_where_the_part_is_close() -> None:
-    intr = CameraIntrinsics(1280, 720, 920.0, 920.0, 639.5, 359.5)
-    organized = np.zeros((720, 1280, 3), np.float32)
-
-    def at(z: float) -> int:
-        organized[..., 2] = z
-        return work_factor(organized, intr)
-
-    assert WORK_SPACING_M == 0.0012
-    assert at(0.9) == 2 and at(0.38) == 2  # 1280 wide: every second pixel (3 x 0.413 mm > 1.2 mm)
-    assert at(0.36) == 3  # 3 x 0.391 mm = 1.17 mm
-    assert at(0.2) == 5  # 0.217 mm a pixel: every fifth is 1.09 mm apart
-    organized[:400, :, 2] = np.nan  # the median of the valid depths
-    organized[400:, :, 2] = 0.3
-    organized[400:440, :, 2] = 5.0
-    assert work_factor(organized, intr) == 3  # 3 x 0.326 mm = 0.98 mm
-    organized[..., 2] = np.nan  # no depth at all: the width alone
-    assert work_factor(organized, intr) == 2
-    small = np.full((360, 640, 3), 0.3, np.float32)
-    assert work_factor(small, CameraIntrinsics(640, 360, 460.0, 460.0, 319.5, 179.5)) == 1  # 0.65 mm a pixel
 
 
 def test_the_work_image_takes_every_factor_th_pixel_inside_the_box_and_range() -> None:
