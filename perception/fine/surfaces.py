@@ -334,13 +334,14 @@ def _complete(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface],
 
 
 def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: int, zc: float, spacing: float,
-                  min_share: float, min_points: int,
-                  sp: SurfaceParams) -> tuple[Surface, NDArray[np.bool_]] | None:  # fmt: skip
+                  min_share: float, min_points: int, sp: SurfaceParams, *,
+                  turning_start: bool = True) -> tuple[Surface, NDArray[np.bool_]] | None:  # fmt: skip
     """A cylinder through most of ``q`` (at least ``min_share`` within ``tol``), labelled ``label``, and its
-    inliers; None when none fits or its radius is implausible (3 mm to 1 m)."""
+    inliers; None when none fits or its radius is implausible (3 mm to 1 m). ``turning_start``: as
+    :func:`perception.fine.cylinder.fit_cylinder`'s."""
     sel = np.ones(len(q), bool)
     for _ in range(3):  # refitted on its own points: other faces in ``q`` (a plate, a cap) pull the first fit
-        cyl = fit_cylinder(q[sel], normals[sel])
+        cyl = fit_cylinder(q[sel], normals[sel], turning_start=turning_start)
         if cyl is None or not 0.003 < cyl[2] < 1.0:
             return None
         axis, centre, r, _ = cyl
@@ -415,9 +416,11 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
         inl = np.abs(q @ nrm + d) <= tol
         spacing = float(noise.spacing_m(zc))
         if inl.mean() < 0.85:
-            found = _try_cylinder(
-                q, normals.reshape(-1, 3)[idx], tol, len(surfaces), zc, spacing, 0.7, sp.min_pixels, sp
-            )
+            # a piece left between grown surfaces is where a fold's blurred band ends up: its normals turn with
+            # the blur, no evidence of a cylinder's radius (zoo dev open box 112: a 9 mm "cylinder" along two
+            # walls' convex edge, which took their inside corner's seam); its fit starts from the circle alone
+            found = _try_cylinder(q, normals.reshape(-1, 3)[idx], tol, len(surfaces), zc, spacing, 0.7,
+                                  sp.min_pixels, sp, turning_start=False)  # fmt: skip
             if found is not None:
                 surfaces.append(found[0])
                 lab.reshape(-1)[idx[found[1]]] = found[0].label
