@@ -60,7 +60,9 @@ def fit_cylinder(p: FloatArray, normals: FloatArray, *,
     found = [f for f in fits if f is not None]
     if not found:
         return None
-    a, c, r = min(found, key=lambda f: float(median(np.abs(_radial(rows, f[1], f[0])[2] - f[2]))))
+    if len(found) > 1:  # the fit that leaves the points the smaller median distance
+        found.sort(key=lambda f: float(median(np.abs(_radial(rows, f[1], f[0])[2] - f[2]))))
+    a, c, r = found[0]
     da, _, length = _radial(np.ascontiguousarray(p.T), c, a)
     res = length - r
     c = c + float(np.mean(da)) * a
