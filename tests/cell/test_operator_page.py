@@ -172,6 +172,11 @@ def test_the_page_drives_a_job_through_approval_welding_a_fault_and_its_acknowle
             shot("5-fault", "fault")
             assert api(base, "/sim/faults/clear", {})[0] == 200
             page.click("#acknowledge")
+            # the daemon answers within its 30 s wait for the job runner; the message says how it went
+            expect(page.locator("#message")).to_contain_text("acknowledge", timeout=45_000)
+            assert page.locator("#message").inner_text().startswith("acknowledge: done"), page.locator(
+                "#message"
+            ).inner_text()
             expect(page.locator("#state")).to_have_text("idle", timeout=15_000)
             expect(page.locator("#fault-sentence")).to_contain_text("Last fault (acknowledged by Ada)")
             row = page.locator("#history tr").first
