@@ -113,7 +113,8 @@ def fold_seams(
         if len(pa) < 5 or len(pb) < 5:
             continue
         if A.kind == "plane" and B.kind == "plane":
-            out += _plane_pair(p, lab, A, B, pa, pb, noise, fp, up, pair.contact_px)
+            found = _plane_pair(p, lab, A, B, pa, pb, noise, fp, up, pair.contact_px)
+            out += [c for c in found if c.joint != "lap" or _upper_plate(p, lab, pairs, A, B, up, support)]
         elif A.kind != B.kind:
             P, C = (A, B) if A.kind == "plane" else (B, A)
             pp, pc = (pa, pb) if A.kind == "plane" else (pb, pa)
@@ -179,6 +180,30 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
         out.append(SeamCurve("linear", joint, pts, np.tile(A.normal, (2, 1)), np.tile(B.normal, (2, 1)),
                              (A.label, B.label), support, max(A.rms_m, B.rms_m)))  # fmt: skip
     return out
+
+
+def _upper_plate(p: FloatArray, lab: NDArray[np.int32], pairs: tuple[Pair, ...], A: Surface, B: Surface,
+                 up: FloatArray | None, support: frozenset[int]) -> bool:  # fmt: skip
+    """Whether the standing face of a lap fold between ``A`` and ``B`` is an edge face: beside it lies another
+    surface whose points there stand off the lying face by at least half the standing face's height, on its
+    side (the upper plate's top). A narrow face at a part's free edge (a lip, a rolled rim, the sensor's
+    curl where the part ends) has nothing beyond it: no plate lies on the lower one there."""
+    up = CAMERA_DOWN if up is None else up
+    S, L = (A, B) if abs(float(A.normal @ up)) < abs(float(B.normal @ up)) else (B, A)
+    q = p[lab == S.label]
+    q = q[np.isfinite(q[:, 2])]
+    if len(q) == 0:
+        return False
+    height = float(np.percentile(L.residual(q), 98))
+    for pair in pairs:
+        if S.label not in (pair.a, pair.b) or L.label in (pair.a, pair.b):
+            continue
+        other = pair.b if pair.a == S.label else pair.a
+        pa, pb = contact_points(p, lab, pair)
+        top = pb if pair.a == S.label else pa
+        if other not in support and len(top) >= 5 and float(median(L.residual(top))) >= 0.5 * height:
+            return True
+    return False
 
 
 def _tee(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, line: tuple[FloatArray, FloatArray],

@@ -76,6 +76,17 @@ def lap(*, behind: bool = False) -> Scene:
     return scene_of((lower, upper), eye=eye, target=(0.0, 0.02, 0.0))
 
 
+def lip() -> Scene:
+    """A 10 mm plate whose -y edge rises in a lip 6 mm high and 2 mm deep (its inner face 72 degrees from the
+    plate, its outer face flush with the plate's end, no top face), seen from the plate's side of it."""
+    base = hull("base", box_corners(0.22, 0.16, 0.010))
+    section = np.array([[0.0, 0.0], [0.002, 0.0], [0.002, 0.006]])  # extruded along y: turned onto x below
+    along_x = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    rim = Part("lip", "hull", (0, 0, 0), make_X(along_x, [0.0, -0.078, 0.010]), (0.5, 0.5, 0.5),
+               corners_part=prism(section, 0.22))  # fmt: skip
+    return scene_of((base, rim), eye=(-0.05, 0.30, 0.30), target=(0.0, -0.02, 0.0))
+
+
 def v_groove(*, gap: float = 0.0, root: float = 0.0, near: bool = False) -> Scene:
     """Two 12 mm plates with 30-degree bevels (from the vertical) meeting at a V, its root ``root`` above
     the plates' bottom, with a ``gap`` between their root faces; seen from 0.6 m, so that each bevel is a
@@ -133,7 +144,7 @@ def rendered(name: str, noise: str = "none", seed: int = 0) -> RenderResult:
           "butt_oblique": lambda: butt(0.0015, eye=(-0.26, -0.12, 0.30)), "butt_fine": lambda: butt(0.0006),
           "butt_far": lambda: butt(0.0008, eye=(-0.16, -0.40, 0.51)),
           "wall": wall,
-          "lap": lap, "lap_behind": lambda: lap(behind=True), "v_groove": v_groove,
+          "lap": lap, "lip": lip, "lap_behind": lambda: lap(behind=True), "v_groove": v_groove,
           "v_groove_open": lambda: v_groove(gap=0.0016, root=0.001, near=True), "branch": branch,
           "gusset": gusset, "gusset_end": lambda: gusset(at_end=True), "corner": corner}[name]()  # fmt: skip
     if noise == "stereo":

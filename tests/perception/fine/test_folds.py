@@ -310,3 +310,13 @@ def test_a_gusset_on_a_wall_is_a_tee_and_two_walls_butted_at_a_corner_are_an_ins
 
     assert vertical(name) == "fillet"
     assert vertical("corner") == "inside_corner"
+
+
+def test_a_lap_edge_face_has_the_upper_plate_beyond_it_and_a_lip_at_a_free_edge_is_no_lap() -> None:
+    # the lap: its edge face (5 mm) meets the lower plate on the exact line, and the upper plate lies beyond it
+    (gt,) = rendered("lap").ground_truth
+    (s,) = folds("lap")
+    assert s.joint == "lap"
+    assert point_to_polyline_distance(s.points, gt.points_camera).max() < 2e-4
+    # a lip rising 6 mm at a plate's free edge (a rolled rim): a concave fold as narrow, with nothing beyond it
+    assert folds("lip") == []
