@@ -88,7 +88,7 @@ def header_share(png: bytes, rgb: tuple[int, int, int]) -> float:
 
 # long: one browser session, step by step, as an operator goes through it
 @needs_browser
-@pytest.mark.timeout(120)
+@pytest.mark.timeout(180)
 def test_the_page_drives_a_job_through_approval_welding_a_fault_and_its_acknowledgement(
     cell: tuple[Daemon, str], tmp_path: Path
 ) -> None:
@@ -196,3 +196,27 @@ def test_the_page_drives_a_job_through_approval_welding_a_fault_and_its_acknowle
 
 def _blob() -> Any:
     return re.compile(r"^blob:")
+
+
+@needs_browser
+@pytest.mark.timeout(60)
+def test_a_status_request_the_cell_never_answers_does_not_freeze_the_page(cell: tuple[Daemon, str]) -> None:
+    _, base = cell
+    held: list[Any] = []
+
+    def hold_the_first(route: Any) -> None:
+        if not held:
+            held.append(route)  # never answered: the page gives it up after request_ms and polls again
+        else:
+            route.continue_()
+
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
+        try:
+            page = browser.new_page(viewport=VIEWPORT)
+            page.route("**/status", hold_the_first)
+            page.goto(f"{base}/?poll_ms=250&request_ms=1000#token={TOKEN}")
+            sync_api.expect(page.locator("#state")).to_have_text("idle", timeout=10_000)
+            assert len(held) == 1
+        finally:
+            browser.close()
