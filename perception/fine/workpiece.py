@@ -5,7 +5,9 @@ A clutter box on the table, a second part beside the fixture, two boxes leaning 
 corners are real folds, and only the prompts tell them from the part. A face the operator did not click (a
 rib's narrow end, a gusset) still belongs to the part when it meets a prompted face: the surfaces are joined
 through the adjacency graph, but only by pairs whose points come within reach of each other in space (an
-object in front of the part in the image is not joined to it) and never through the support. Without prompts
+object in front of the part in the image is not joined to it) and never through the support, nor across a gap
+the support shows in (a box on the table whose corner comes a few millimetres from the part), except two plates
+in one plane (a butt joint's gap may show the table). Without prompts
 every surface counts (None).
 """
 
@@ -15,8 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.fine.cylinder import axis_basis
-from perception.fine.folds import contact_points
-from perception.fine.types import FloatArray, NoiseModel, Pair, SurfaceSet
+from perception.fine.types import FloatArray, NoiseModel, Pair, Surface, SurfaceSet
 from perception.fits import median
 
 PROMPT_RADIUS_PX = 2  # a prompt on an unlabelled work pixel (an edge, a dropout) takes the labels this near it
@@ -74,7 +75,7 @@ def workpiece_labels(
     p = np.asarray(points, dtype=np.float64)
     neighbours: dict[int, set[int]] = {}
     for pair in pairs:
-        if pair.a in support or pair.b in support or not _touch(p, surfaces, pair, noise):
+        if pair.a in support or pair.b in support or not _touch(p, surfaces, pair, noise, support):
             continue
         neighbours.setdefault(pair.a, set()).add(pair.b)
         neighbours.setdefault(pair.b, set()).add(pair.a)
@@ -156,14 +157,56 @@ def centre_label(surfaces: SurfaceSet, support: frozenset[int]) -> int | None:
     return int(lab[ys[k], xs[k]])
 
 
-def _touch(p: FloatArray, surfaces: SurfaceSet, pair: Pair, noise: NoiseModel) -> bool:
-    """Whether the two surfaces' points among the pair's contact pixels come within reach in space."""
+def _touch(p: FloatArray, surfaces: SurfaceSet, pair: Pair, noise: NoiseModel, support: frozenset[int]) -> bool:
+    """Whether the two surfaces' points among the pair's contact pixels come within reach in space with no
+    support seen between them: of the point pairs within reach (nearest first, up to :data:`TOUCH_TRIES`), one
+    whose pixels the support does not lie between. A blurred corner band between two faces of the part is not
+    the table; a gap where the table shows is two objects side by side (a box on the table beside the part,
+    its corner a few millimetres from the part's edge)."""
     from scipy.spatial import cKDTree
 
-    pa, pb = contact_points(p, surfaces.labels, pair)
+    lab = surfaces.labels
+    ys, xs = pair.contact_px[:, 0], pair.contact_px[:, 1]
+    la = lab[ys, xs]
+    px_a = pair.contact_px[la == pair.a]
+    px_b = pair.contact_px[la == pair.b]
+    pa, pb = p[px_a[:, 0], px_a[:, 1]], p[px_b[:, 0], px_b[:, 1]]
+    fa, fb = np.isfinite(pa[:, 2]), np.isfinite(pb[:, 2])
+    px_a, pa, px_b, pb = px_a[fa], pa[fa], px_b[fb], pb[fb]
     if len(pa) == 0 or len(pb) == 0:
         return False
     z = float(median(np.concatenate([pa[:, 2], pb[:, 2]])))
     reach = TOUCH_M + 3.0 * float(noise.sigma_m(z)) + 2.0 * float(noise.spacing_m(z))
-    d, _ = cKDTree(pb).query(pa, distance_upper_bound=reach)
-    return bool(np.isfinite(d).any())
+    d, j = cKDTree(pb).query(pa, distance_upper_bound=reach)
+    near = np.flatnonzero(np.isfinite(d))
+    if not support or _butt_partners(surfaces.surfaces[pair.a], surfaces.surfaces[pair.b], pb):
+        return len(near) > 0  # plates side by side in one plane: a butt joint's gap may show the table
+    is_support = np.zeros(len(surfaces.surfaces) + 1, dtype=bool)  # indexed by label + 1 (-1: none)
+    is_support[[k + 1 for k in support if k < len(surfaces.surfaces)]] = True
+    for i in near[np.argsort(d[near], kind="stable")][:TOUCH_TRIES]:
+        if not _support_between(lab, is_support, px_a[i], px_b[j[i]]):
+            return True
+    return False
+
+
+def _butt_partners(a: Surface, b: Surface, pb: FloatArray) -> bool:
+    """Whether planes ``a`` and ``b`` are the two plates of a butt joint as :mod:`perception.fine.gaps` models
+    one: parallel within its angle and ``b``'s contact points ``pb`` on ``a``'s plane within its step."""
+    from perception.fine.gaps import GapParams
+
+    gp = GapParams()
+    return (a.kind == "plane" and b.kind == "plane" and abs(float(a.normal @ b.normal)) >= np.cos(gp.max_angle_rad)
+            and abs(float(median(a.residual(pb)))) <= gp.max_step_m)  # fmt: skip
+
+
+TOUCH_TRIES = 64  # point pairs within reach looked at for one with no support between them
+
+
+def _support_between(lab: NDArray[np.int32], is_support: NDArray[np.bool_], a: NDArray[np.int64],
+                     b: NDArray[np.int64]) -> bool:  # fmt: skip
+    """Whether a support pixel lies on the image segment between pixels ``a`` and ``b`` (row, col)."""
+    n = int(max(abs(int(b[0]) - int(a[0])), abs(int(b[1]) - int(a[1])))) + 1
+    t = np.linspace(0.0, 1.0, n + 1)
+    rows = np.rint(a[0] + t * (b[0] - a[0])).astype(np.intp)
+    cols = np.rint(a[1] + t * (b[1] - a[1])).astype(np.intp)
+    return bool(is_support[lab[rows, cols] + 1].any())

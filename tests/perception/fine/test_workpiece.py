@@ -117,3 +117,45 @@ def test_what_stands_over_the_part_joins_it_without_touching_and_what_stands_bes
     assert wp is not None
     assert {lab for lab in big if parts[lab] == WEB} and {lab for lab in big if parts[lab] == WEB} <= wp
     assert not {lab for lab in wp if parts[lab] in (BOX1, BOX2)}
+
+
+def _work_of(parts: tuple[Part, ...], eye: tuple[float, float, float], target: tuple[float, float, float]):
+    res = render(scene_of(parts, eye=eye, target=target), noise="none")
+    p = res.capture.points_camera().astype(np.float64)
+    lp = local_planes(p, window_px=7)
+    nm = estimate_noise(p, lp)
+    surf = segment_surfaces(p, lp, nm, factor=1)
+    return res, p, surf, adjacent_pairs(surf, nm), find_support(p, surf, nm), nm
+
+
+def test_a_slab_whose_corner_comes_within_reach_of_the_part_does_not_join_it_across_the_table() -> None:
+    """A slab on the table, turned 30 degrees, one corner 4 mm from the tee's base plate: within the touching
+    reach (6 mm plus noise and spacing), but the table shows between them, so it is another object."""
+    turned = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    corners = np.array([turned @ [sx * 0.04, sy * 0.04, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+    x = -0.15 - 0.004 - float(corners[:, 0].max())  # its farthest corner 4 mm short of the plate's -x end
+    slab = Part("slab", "hull", (0, 0, 0), make_X(turned, [x, -0.02, 0.0]), (0.5, 0.5, 0.5), workpiece=False,
+                corners_part=box_corners(0.08, 0.08, 0.02))  # fmt: skip
+    base = hull("base", box_corners(0.30, 0.24, 0.012))
+    web = hull("web", box_corners(0.010, 0.16, 0.08), z=0.012)
+    res, p, surf, pairs, support, nm = _work_of((base, web, slab), (-0.12, -0.10, 0.55), (-0.08, 0.0, 0.0))
+    parts = {lab: part_of(res, surf, lab) for lab in range(len(surf.surfaces))}
+    slab_labels = {lab for lab in parts if parts[lab] == 3}
+    assert slab_labels and support
+    # the slab's faces come within reach of the plate's top: the old test (reach alone) joined them
+    assert any({pair.a, pair.b} & slab_labels and {parts[pair.a], parts[pair.b]} == {BASE, 3} for pair in pairs)
+    wp = workpiece_labels(p, surf, pairs, nm, prompted=prompted_labels(np.array([click(res, BASE)]), surf),
+                          support=support)  # fmt: skip
+    assert wp is not None and {parts[lab] for lab in wp} == {BASE, WEB}
+
+
+def test_two_plates_of_a_butt_joint_join_across_their_gap_where_the_table_shows() -> None:
+    """Two 4 mm plates 5 mm apart, seen from above the gap (the table shows in it, between every pair of their
+    points within reach): a butt joint's plates, one clicked, are one workpiece."""
+    left = hull("left", box_corners(0.12, 0.20, 0.004), x=-0.06 - 0.0025)
+    right = hull("right", box_corners(0.12, 0.20, 0.004), x=0.06 + 0.0025)
+    res, p, surf, pairs, support, nm = _work_of((left, right), (0.0, -0.05, 0.45), (0.0, 0.0, 0.0))
+    parts = {lab: part_of(res, surf, lab) for lab in range(len(surf.surfaces))}
+    wp = workpiece_labels(p, surf, pairs, nm, prompted=prompted_labels(np.array([click(res, 1)]), surf),
+                          support=support)  # fmt: skip
+    assert support and wp is not None and {parts[lab] for lab in wp} == {1, 2}
