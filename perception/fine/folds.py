@@ -63,11 +63,18 @@ def plane_line(a: Surface, b: Surface, near: FloatArray,
 
 def contact_points(p: FloatArray, labels: NDArray[np.int32], pair: Pair) -> tuple[FloatArray, FloatArray]:
     """The (N, 3) points of surface ``pair.a`` and of ``pair.b`` among the pair's contact pixels."""
-    ys, xs = pair.contact_px[:, 0], pair.contact_px[:, 1]
-    la = labels[ys, xs]
-    pa = p[ys[la == pair.a], xs[la == pair.a]]
-    pb = p[ys[la == pair.b], xs[la == pair.b]]
-    return pa[np.isfinite(pa[:, 2])], pb[np.isfinite(pb[:, 2])]
+    pa, pb, _, _ = contact_points_px(p, labels, pair)
+    return pa, pb
+
+
+def contact_points_px(p: FloatArray, labels: NDArray[np.int32],
+                      pair: Pair) -> tuple[FloatArray, FloatArray, NDArray[np.int64], NDArray[np.int64]]:  # fmt: skip
+    """:func:`contact_points` with each point's (row, col) pixel: (pa, pb, px_a, px_b)."""
+    la = labels[pair.contact_px[:, 0], pair.contact_px[:, 1]]
+    px_a, px_b = pair.contact_px[la == pair.a], pair.contact_px[la == pair.b]
+    pa, pb = p[px_a[:, 0], px_a[:, 1]], p[px_b[:, 0], px_b[:, 1]]
+    fa, fb = np.isfinite(pa[:, 2]), np.isfinite(pb[:, 2])
+    return pa[fa], pb[fb], px_a[fa], px_b[fb]
 
 
 def joint_type(na: FloatArray, nb: FloatArray, up: FloatArray | None, standing_height_m: float,
@@ -114,7 +121,9 @@ def fold_seams(
             continue
         if A.kind == "plane" and B.kind == "plane":
             found = _plane_pair(p, lab, A, B, pa, pb, noise, fp, up, pair.contact_px)
-            out += [c for c in found if c.joint != "lap" or _upper_plate(p, lab, pairs, A, B, up, support)]
+            if any(c.joint == "lap" for c in found) and not _upper_plate(p, lab, pairs, A, B, up, support):
+                found = [c for c in found if c.joint != "lap"]
+            out += found
         elif A.kind != B.kind:
             P, C = (A, B) if A.kind == "plane" else (B, A)
             pp, pc = (pa, pb) if A.kind == "plane" else (pb, pa)
@@ -188,8 +197,7 @@ def _upper_plate(p: FloatArray, lab: NDArray[np.int32], pairs: tuple[Pair, ...],
     surface whose points there stand off the lying face by at least half the standing face's height, on its
     side (the upper plate's top). A narrow face at a part's free edge (a lip, a rolled rim, the sensor's
     curl where the part ends) has nothing beyond it: no plate lies on the lower one there."""
-    up = CAMERA_DOWN if up is None else up
-    S, L = (A, B) if abs(float(A.normal @ up)) < abs(float(B.normal @ up)) else (B, A)
+    S, L = _standing_lying(A, B, CAMERA_DOWN if up is None else up)
     q = p[lab == S.label]
     q = q[np.isfinite(q[:, 2])]
     if len(q) == 0:
@@ -263,13 +271,18 @@ def local_turn(qa: FloatArray, qb: FloatArray, p0: FloatArray, u: FloatArray, m:
 def _standing_height(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p0: FloatArray, u: FloatArray,
                      up: FloatArray) -> float:  # fmt: skip
     """How far the more upright of the two faces reaches from the fold (98th percentile of its points)."""
-    S = A if abs(float(A.normal @ up)) < abs(float(B.normal @ up)) else B
+    S, _ = _standing_lying(A, B, up)
     q = p[lab == S.label]
     q = q[np.isfinite(q[:, 2])][:: max(1, int((lab == S.label).sum()) // 3000)]
     if len(q) == 0:
         return 0.0
     _, d = line_coords(q, p0, u)
     return float(np.percentile(d, 98))
+
+
+def _standing_lying(A: Surface, B: Surface, up: FloatArray) -> tuple[Surface, Surface]:
+    """The more upright of the two faces (relative to ``up``) and the other."""
+    return (A, B) if abs(float(A.normal @ up)) < abs(float(B.normal @ up)) else (B, A)
 
 
 def line_coords(q: FloatArray, p0: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.fine.cylinder import axis_basis
+from perception.fine.folds import contact_points_px
 from perception.fine.types import FloatArray, NoiseModel, Pair, Surface, SurfaceSet
 from perception.fits import median
 
@@ -166,13 +167,7 @@ def _touch(p: FloatArray, surfaces: SurfaceSet, pair: Pair, noise: NoiseModel, s
     from scipy.spatial import cKDTree
 
     lab = surfaces.labels
-    ys, xs = pair.contact_px[:, 0], pair.contact_px[:, 1]
-    la = lab[ys, xs]
-    px_a = pair.contact_px[la == pair.a]
-    px_b = pair.contact_px[la == pair.b]
-    pa, pb = p[px_a[:, 0], px_a[:, 1]], p[px_b[:, 0], px_b[:, 1]]
-    fa, fb = np.isfinite(pa[:, 2]), np.isfinite(pb[:, 2])
-    px_a, pa, px_b, pb = px_a[fa], pa[fa], px_b[fb], pb[fb]
+    pa, pb, px_a, px_b = contact_points_px(p, lab, pair)
     if len(pa) == 0 or len(pb) == 0:
         return False
     z = float(median(np.concatenate([pa[:, 2], pb[:, 2]])))
