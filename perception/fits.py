@@ -86,6 +86,7 @@ def soft_l1_least_squares(
     max_evaluations: int = 100,
     ftol: float = 1e-6,
     xtol: float = 1e-6,
+    give_up: Callable[[FloatArray], bool] | None = None,
 ) -> tuple[FloatArray, bool]:
     """The parameters x minimising sum(rho((fun(x) / f_scale)**2)) with the soft-L1 loss rho(z) = 2 (sqrt(1 + z) -
     1) (``scipy.optimize.least_squares(..., loss="soft_l1")``'s cost), from ``x0``, and whether it settled within
@@ -94,7 +95,9 @@ def soft_l1_least_squares(
     robust cost's gradient is zero too), the variables measured in units of ``x_scale``; it stops when a step
     lowers the cost by less than ``ftol`` of it or moves x by less than ``xtol`` of its size (scaled), as
     scipy's does. For a few parameters and a few thousand residuals scipy's trust-region solver spends most
-    of its time in Python around each step (a cylinder's fit: 0.7 ms a step); this one does not."""
+    of its time in Python around each step (a cylinder's fit: 0.7 ms a step); this one does not. ``give_up``: a
+    test of each accepted x that ends the fit unsettled when true (a parameter running off to where the caller
+    would reject it anyway)."""
     x = np.array(x0, dtype=np.float64)
     f2 = f_scale * f_scale
 
@@ -125,6 +128,8 @@ def soft_l1_least_squares(
                 damping = max(damping / 10.0, 1e-12)
                 if settled:
                     return x, True
+                if give_up is not None and give_up(x):
+                    return x, False
                 break
             damping *= 4.0
             if damping > 1e12:

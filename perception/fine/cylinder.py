@@ -11,6 +11,7 @@ from perception.fits import median, soft_l1_least_squares
 # a cylinder's fit settles within 20 evaluations from its start (dev zoo's pipes: 4 to 17); a nearly flat
 # patch's radius runs off towards infinity for hundreds (one V-groove bevel: 325 evaluations, 0.3 s, to 23 m)
 MAX_EVALUATIONS = 60
+MAX_RADIUS_M = 1.0  # a wider cylinder is a plane to the fit (a pipe, a tank's shell: under a metre)
 
 
 def fit_cylinder(p: FloatArray, normals: FloatArray, *,
@@ -129,9 +130,10 @@ def _settle(rows: FloatArray, axis: FloatArray, centre: FloatArray,
     sig0 = float(median(np.abs(resid(np.array([0.0, 0.0, 0.0, 0.0, r]))))) + 1e-6
     x, settled = soft_l1_least_squares(resid, jac, np.array([0.0, 0.0, 0.0, 0.0, r]), f_scale=max(sig0, 1e-4),
                                        x_scale=np.array([0.05, 0.05, scale, scale, scale]),
-                                       max_evaluations=MAX_EVALUATIONS)  # fmt: skip
+                                       max_evaluations=MAX_EVALUATIONS,
+                                       give_up=lambda x: bool(x[4] > MAX_RADIUS_M))  # fmt: skip
     if not settled:
-        return None  # still moving after MAX_EVALUATIONS: a radius running off to a plane's, not a cylinder
+        return None  # still moving after MAX_EVALUATIONS, or past MAX_RADIUS_M: a radius running off to a plane's
     a = axis + x[0] * e1 + x[1] * e2
     a /= np.linalg.norm(a)
     c = centre + x[2] * e1 + x[3] * e2

@@ -152,10 +152,18 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
         piece = inl if pixels is None else inl[max(_connected_pieces(pixels[inl], width, 1), key=len)]
         if len(piece) >= min_points:
             out.append(piece)
-            left = np.setdiff1d(left, piece, assume_unique=True)
+            left = _without(left, piece, len(q))
             continue
-        left = np.setdiff1d(left, inl, assume_unique=True)
+        left = _without(left, inl, len(q))
     return out
+
+
+def _without(left: NDArray[np.int64], taken: NDArray[np.int64], n: int) -> NDArray[np.int64]:
+    """The indices of ``left`` (sorted, distinct, below ``n``) not in ``taken`` (a subset of them), in order: the
+    values of ``np.setdiff1d(left, taken, assume_unique=True)``, by a mask instead of a sort."""
+    keep = np.ones(n, dtype=bool)
+    keep[taken] = False
+    return left[keep[left]]
 
 
 def _components(p: FloatArray, planes: LocalPlanes, noise: NoiseModel,
@@ -289,9 +297,10 @@ def _planes_of(q: FloatArray, idx: NDArray[np.int64], tol: FloatArray, width: in
     its largest connected piece and two-dimensional, unlabelled, with their members."""
     out: list[tuple[Surface, NDArray[np.int64]]] = []
     for sub in _ransac_planes(q, tol, sp.min_pixels, rng, pixels=idx, width=width):
-        if _two_dimensional(q[sub], spacing, sp):
-            nrm, d, rms = _fit_plane(q[sub])
-            out.append((Surface(-1, "plane", nrm, d, rms, len(sub), mean_rows(q[sub]), zc), idx[sub]))
+        qs = q[sub]
+        if _two_dimensional(qs, spacing, sp):
+            nrm, d, rms = _fit_plane(qs)
+            out.append((Surface(-1, "plane", nrm, d, rms, len(sub), mean_rows(qs), zc), idx[sub]))
     return out
 
 

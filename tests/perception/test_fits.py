@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -204,6 +205,30 @@ def test_soft_l1_least_squares_agrees_with_scipy_on_noise_and_outliers() -> None
     assert settled
     np.testing.assert_allclose(ours, ref, atol=1e-7)
     assert abs(ours[2] - 0.05) < 1e-4  # and near the truth despite the outliers
+
+
+def test_soft_l1_least_squares_gives_up_when_told_and_only_then() -> None:
+    """The circle's fit from a radius of 10 mm passes 30 mm on its way to 50 mm: told to give up past 30 mm it
+    stops there unsettled, at the first accepted step beyond; told to give up past 60 mm it settles as before."""
+    from perception.fits import soft_l1_least_squares
+
+    t = np.linspace(0.0, 2.0, 200)
+    fun, jac = _circle_problem(np.column_stack([0.05 * np.cos(t), 0.05 * np.sin(t)]))
+    kw = dict(f_scale=1e-4, x_scale=np.full(3, 0.05), ftol=1e-12, xtol=1e-12)
+    seen: list[float] = []
+
+    def past(limit: float) -> Callable[[np.ndarray], bool]:
+        def give_up(x: np.ndarray) -> bool:
+            seen.append(float(x[2]))
+            return bool(x[2] > limit)
+
+        return give_up
+
+    x, settled = soft_l1_least_squares(fun, jac, np.array([0.0, 0.0, 0.01]), give_up=past(0.03), **kw)
+    assert not settled and x[2] > 0.03 and seen[-1] == x[2] and all(r <= 0.03 for r in seen[:-1])
+    x, settled = soft_l1_least_squares(fun, jac, np.array([0.0, 0.0, 0.01]), give_up=past(0.06), **kw)
+    assert settled
+    np.testing.assert_allclose(x, [0.0, 0.0, 0.05], atol=1e-9)
 
 
 def test_soft_l1_least_squares_reports_a_fit_still_moving_at_its_limit() -> None:
