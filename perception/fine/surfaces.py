@@ -348,9 +348,10 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
     """A cylinder through most of ``q`` (at least ``min_share`` within ``tol``), labelled ``label``, and its
     inliers; None when none fits or its radius is implausible (3 mm to 1 m). ``turning_start``: as
     :func:`perception.fine.cylinder.fit_cylinder`'s."""
-    sel = np.ones(len(q), bool)
+    sel: NDArray[np.bool_] | None = None  # all of them (a copy of every point of a table's patch costs)
     for _ in range(3):  # refitted on its own points: other faces in ``q`` (a plate, a cap) pull the first fit
-        cyl = fit_cylinder(q[sel], normals[sel], turning_start=turning_start)
+        on, on_normals = (q, normals) if sel is None else (q[sel], normals[sel])
+        cyl = fit_cylinder(on, on_normals, turning_start=turning_start)
         if cyl is None or not 0.003 < cyl[2] < 1.0:
             return None
         axis, centre, r, _ = cyl
