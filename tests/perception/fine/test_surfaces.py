@@ -394,3 +394,20 @@ def test_a_small_pipes_strips_are_not_chained_to_the_base_through_edge_on_sliver
     for truth in cap.ground_truth:
         near = [float(np.median(point_to_polyline_distance(p, truth.points_camera))) for p in seams]
         assert min(near) < 0.0005
+
+
+def test_ransacs_points_left_are_setdiff1ds_values_in_order() -> None:
+    """_without (the RANSAC's points left after a plane takes some, by a mask) gives exactly what
+    np.setdiff1d(left, taken, assume_unique=True) gives, for sorted sets left and subsets taken of them,
+    including the empty and the whole subset."""
+    from perception.fine.surfaces import _without
+
+    rng = np.random.default_rng(5)
+    for n in (1, 7, 1000, 50_000):
+        left = np.flatnonzero(rng.random(n) < 0.7).astype(np.int64)
+        for share in (0.0, 0.3, 1.0):
+            taken = left[rng.random(len(left)) < share]
+            got = _without(left, taken, n)
+            assert got.dtype == left.dtype
+            assert got.tolist() == np.setdiff1d(left, taken, assume_unique=True).tolist()
+    assert _without(np.array([2, 5, 9], dtype=np.int64), np.array([5], dtype=np.int64), 10).tolist() == [2, 9]
