@@ -149,7 +149,7 @@ def _ransac_planes(q: FloatArray, tol: FloatArray, min_points: int, rng: np.rand
         inl = left[np.abs(q_left @ n2 + d2) <= tol_left]
         if len(inl) < min_points:
             break
-        piece = inl if pixels is None else inl[max(_connected_pieces(pixels[inl], width, 1), key=len)]
+        piece = inl if pixels is None else inl[_largest_piece(pixels[inl], width)]
         if len(piece) >= min_points:
             out.append(piece)
             left = _without(left, piece, len(q))
@@ -306,20 +306,33 @@ def _planes_of(q: FloatArray, idx: NDArray[np.int64], tol: FloatArray, width: in
 
 def _connected_pieces(pixels: NDArray[np.int64], width: int, min_size: int) -> list[NDArray[np.int64]]:
     """Index sets (into ``pixels``, flat pixel indices) of the 8-connected pieces of at least ``min_size``."""
-    import cv2
-
     if len(pixels) < min_size:
         return []
+    c, n = _piece_labels(pixels, width)
+    sizes = np.bincount(c, minlength=n)
+    order = np.argsort(c, kind="stable")
+    starts = np.searchsorted(c[order], np.arange(n + 1))
+    return [order[starts[k] : starts[k + 1]] for k in range(1, n) if sizes[k] >= min_size]
+
+
+def _largest_piece(pixels: NDArray[np.int64], width: int) -> NDArray[np.intp]:
+    """The index set (into ``pixels``, flat pixel indices) of their largest 8-connected piece, the first of
+    equals: ``max(_connected_pieces(pixels, width, 1), key=len)``, without sorting every index by its piece."""
+    c, n = _piece_labels(pixels, width)
+    sizes = np.bincount(c, minlength=n)
+    return np.flatnonzero(c == 1 + int(np.argmax(sizes[1:])))
+
+
+def _piece_labels(pixels: NDArray[np.int64], width: int) -> tuple[NDArray[np.int32], int]:
+    """Each of the (non-empty) ``pixels``' 8-connected piece, 1 to n - 1, and n."""
+    import cv2
+
     ys, xs = np.divmod(pixels, width)
     y0, x0 = ys.min(), xs.min()
     m = np.zeros((ys.max() - y0 + 1, xs.max() - x0 + 1), np.uint8)
     m[ys - y0, xs - x0] = 1
     n, comp = cv2.connectedComponents(m, connectivity=8)
-    c = comp[ys - y0, xs - x0]
-    sizes = np.bincount(c, minlength=n)
-    order = np.argsort(c, kind="stable")
-    starts = np.searchsorted(c[order], np.arange(n + 1))
-    return [order[starts[k] : starts[k + 1]] for k in range(1, n) if sizes[k] >= min_size]
+    return comp[ys - y0, xs - x0], int(n)
 
 
 def _complete(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Surface], normals: FloatArray,

@@ -411,3 +411,21 @@ def test_ransacs_points_left_are_setdiff1ds_values_in_order() -> None:
             assert got.dtype == left.dtype
             assert got.tolist() == np.setdiff1d(left, taken, assume_unique=True).tolist()
     assert _without(np.array([2, 5, 9], dtype=np.int64), np.array([5], dtype=np.int64), 10).tolist() == [2, 9]
+
+
+def test_the_largest_piece_is_the_first_longest_of_the_connected_pieces() -> None:
+    """_largest_piece gives exactly max(_connected_pieces(pixels, width, 1), key=len): the same indices in the
+    same order, the first of two equal pieces (two 3-pixel pieces: the one of the lower label, met first in the
+    raster), and on random scatters of pixels."""
+    from perception.fine.surfaces import _connected_pieces, _largest_piece
+
+    width = 10
+    two = np.array([0, 1, 2, 50, 51, 52], dtype=np.int64)  # two rows of three, far apart: equal pieces
+    assert _largest_piece(two, width).tolist() == [0, 1, 2]
+    assert _largest_piece(two[::-1].copy(), width).tolist() == [3, 4, 5]  # the first met in the raster
+    rng = np.random.default_rng(11)
+    for density in (0.05, 0.3, 0.6):
+        pixels = np.flatnonzero(rng.random(40 * 60) < density).astype(np.int64)
+        pixels = pixels[rng.permutation(len(pixels))]  # in no order: the pieces follow the raster, not it
+        expected = max(_connected_pieces(pixels, 60, 1), key=len)
+        assert _largest_piece(pixels, 60).tolist() == expected.tolist()
