@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from perception.fine.cylinder import fit_cylinder, normals_follow, turns
+from perception.fine.cylinder import MAX_RADIUS_M, fit_cylinder, normals_follow, turns
 from perception.fine.groups import Groups
 from perception.fine.grow import grow
 from perception.fine.noise import LocalPlanes
@@ -359,13 +359,13 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
                   min_share: float, min_points: int, sp: SurfaceParams, *,
                   turning_start: bool = True) -> tuple[Surface, NDArray[np.bool_]] | None:  # fmt: skip
     """A cylinder through most of ``q`` (at least ``min_share`` within ``tol``), labelled ``label``, and its
-    inliers; None when none fits or its radius is implausible (3 mm to 1 m). ``turning_start``: as
+    inliers; None when none fits or its radius is implausible (3 mm to MAX_RADIUS_M, 1 m). ``turning_start``: as
     :func:`perception.fine.cylinder.fit_cylinder`'s."""
     sel: NDArray[np.bool_] | None = None  # all of them (a copy of every point of a table's patch costs)
     for _ in range(3):  # refitted on its own points: other faces in ``q`` (a plate, a cap) pull the first fit
         on, on_normals = (q, normals) if sel is None else (q[sel], normals[sel])
         cyl = fit_cylinder(on, on_normals, turning_start=turning_start)
-        if cyl is None or not 0.003 < cyl[2] < 1.0:
+        if cyl is None or not 0.003 < cyl[2] < MAX_RADIUS_M:
             return None
         axis, centre, r, _ = cyl
         trial = Surface(-1, "cylinder", np.zeros(3), 0.0, 0.0, 0, mean_rows(q), zc, axis=axis, centre=centre,

@@ -23,6 +23,7 @@ from perception.fits import median
 
 PROMPT_RADIUS_PX = 2  # a prompt on an unlabelled work pixel (an edge, a dropout) takes the labels this near it
 TOUCH_M = 0.006  # two surfaces touch when their points come this close (plus noise and spacing)
+TOUCH_TRIES = 64  # point pairs within reach looked at for one with no support between them
 
 
 def prompted_labels(prompts_px: FloatArray | None, surfaces: SurfaceSet) -> frozenset[int]:
@@ -192,9 +193,6 @@ def _butt_partners(a: Surface, b: Surface, pb: FloatArray) -> bool:
     gp = GapParams()
     return (a.kind == "plane" and b.kind == "plane" and abs(float(a.normal @ b.normal)) >= np.cos(gp.max_angle_rad)
             and abs(float(median(a.residual(pb)))) <= gp.max_step_m)  # fmt: skip
-
-
-TOUCH_TRIES = 64  # point pairs within reach looked at for one with no support between them
 
 
 def _support_between(lab: NDArray[np.int32], is_support: NDArray[np.bool_], a: NDArray[np.int64],
