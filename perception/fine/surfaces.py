@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from perception.fine.components import smooth_components
 from perception.fine.cylinder import MAX_RADIUS_M, fit_cylinder, normals_follow, turns
 from perception.fine.groups import Groups
 from perception.fine.grow import grow
@@ -166,47 +167,6 @@ def _without(left: NDArray[np.int64], taken: NDArray[np.int64], n: int) -> NDArr
     return left[keep[left]]
 
 
-def _components(p: FloatArray, planes: LocalPlanes, noise: NoiseModel,
-                sp: SurfaceParams) -> tuple[NDArray[np.int32], NDArray[np.int64]]:  # fmt: skip
-    """(h, w) connected-component labels (-1: none) of the smooth pixels, cut at folds and depth jumps, and
-    each component's pixel count."""
-    import cv2
-
-    z = p[..., 2]
-    valid = np.isfinite(z)
-    zz = np.where(valid, z, 1.0)
-    sigma = noise.sigma_m(zz)
-    spacing = noise.spacing_m(zz)
-    n = np.nan_to_num(planes.normal)
-    h, w = z.shape
-    # a fold: the normal turns by more than normal_turn_rad between the pixels one window apart on either
-    # side (window-mean normals blur a fold over about a window, so neighbours alone turn too little)
-    st = max(1, planes.window_px // 2)
-    cos_t = np.cos(sp.normal_turn_rad)
-    fold = np.zeros(z.shape, bool)
-    fold[:, st:-st] |= np.einsum("ijk,ijk->ij", n[:, 2 * st :], n[:, : -2 * st]) < cos_t
-    fold[st:-st, :] |= np.einsum("ijk,ijk->ij", n[2 * st :, :], n[: -2 * st, :]) < cos_t
-    ok_px = valid & np.isfinite(planes.normal[..., 0]) & ~fold
-    # depth jumps between 4-neighbours cut links (tolerance: noise plus the spacing stretched by obliquity)
-    link_r = np.zeros(z.shape, bool)
-    link_d = np.zeros(z.shape, bool)
-    for link, (dy, dx) in ((link_r, (0, 1)), (link_d, (1, 0))):
-        a = (slice(0, h - dy), slice(0, w - dx))
-        b = (slice(dy, h), slice(dx, w))
-        dp = np.nan_to_num(p[b] - p[a], copy=False)
-        off = np.abs(np.einsum("ijk,ijk->ij", dp, n[a]))
-        link[a] = ok_px[a] & ok_px[b] & (off < sp.jump_sigma * sigma[a] + 0.5 * spacing[a])
-    big = np.zeros((2 * h - 1, 2 * w - 1), np.uint8)
-    big[::2, ::2] = ok_px
-    big[::2, 1::2] = link_r[:, :-1]
-    big[1::2, ::2] = link_d[:-1, :]
-    n_comp, comp_big = cv2.connectedComponents(big, connectivity=4)
-    comp = comp_big[::2, ::2].astype(np.int32) - 1  # background (0) -> -1
-    comp[~ok_px] = -1
-    counts = np.bincount(comp[comp >= 0].ravel(), minlength=max(n_comp - 1, 0))
-    return comp, counts
-
-
 def segment_surfaces(
     points: NDArray[np.floating],
     planes: LocalPlanes,
@@ -220,7 +180,7 @@ def segment_surfaces(
     p = np.asarray(points, dtype=np.float64)
     z = p[..., 2]
     sigma = noise.sigma_m(np.where(np.isfinite(z), z, 1.0))
-    comp, counts = _components(p, planes, noise, sp)
+    comp, counts = smooth_components(p, planes, noise, normal_turn_rad=sp.normal_turn_rad, jump_sigma=sp.jump_sigma)
 
     surfaces: list[Surface] = []
     labels = np.full(z.shape, -1, np.int32)

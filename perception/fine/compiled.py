@@ -1,0 +1,27 @@
+"""The fine stage's compiled kernels (:mod:`numba`: :mod:`perception.fine.grow`, :mod:`perception.fine.components`)
+run once on a few pixels, so that a detection timed afterwards does not pay for their compilation (2-3 s the
+first time on a machine, then loaded from numba's cache in about a tenth of a second)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every compiled kernel of the fine stage."""
+    from perception.fine.components import smooth_components
+    from perception.fine.grow import grow
+    from perception.fine.noise import LocalPlanes
+    from perception.fine.types import NoiseModel, Surface
+
+    p = np.zeros((4, 4, 3))
+    p[..., 2] = 0.5
+    normal = np.zeros((4, 4, 3))
+    normal[..., 2] = -1.0
+    planes = LocalPlanes(np.full((4, 4), 9.0), normal, np.zeros((4, 4)), np.zeros((4, 4)), 3)
+    noise = NoiseModel(sigma_1m_m=1e-3, floor_m=5e-5, pixel_angle_rad=1e-3)
+    smooth_components(p, planes, noise, normal_turn_rad=0.7, jump_sigma=6.0)
+    labels = np.full((4, 4), -1, np.int32)
+    labels[:, 0] = 0
+    floor = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), 0.5, 0.0, 4, np.array([0.0, 0.0, 0.5]), 0.5)
+    grow(p, labels, [floor], np.full((4, 4), 1e-3), within_sigma=3.0, rings=2)
