@@ -44,3 +44,82 @@ def test_no_full_window_is_a_clear_error() -> None:
     p = np.full((20, 20, 3), np.nan)
     with pytest.raises(NoSeamFound, match="full window"):
         estimate_noise(p, local_planes(p, window_px=7))
+
+
+def test_local_planes_of_a_tilted_plane_and_a_fold_against_their_exact_geometry() -> None:
+    """A plane z = 0.5 + 0.2 x - 0.1 y sampled every millimetre: every full window's normal is the plane's to
+    rounding and its residual variance zero; within the window's half of the border and at invalid pixels,
+    nothing; where the windows straddle a fold (the plane turning 45 degrees), the variance grows."""
+    h, w = 20, 30
+    y, x = np.mgrid[:h, :w] * 0.001
+    z = 0.5 + 0.2 * x - 0.1 * y
+    p = np.stack([x, y, z], axis=-1)
+    p[10, 12] = np.nan
+    lp = local_planes(p, window_px=5)
+    n_true = np.array([0.2, -0.1, -1.0]) / np.linalg.norm([0.2, -0.1, -1.0])  # towards the camera (z < 0)
+    inner = np.zeros((h, w), bool)
+    inner[2:-2, 2:-2] = True
+    inner[10, 12] = False
+    full = inner & (lp.count == 25)
+    assert np.abs(lp.normal[inner] - n_true).max() < 1e-9
+    assert np.abs(lp.variance[full]).max() < 1e-15
+    assert np.isnan(lp.normal[~inner]).all() and np.isnan(lp.variance[~inner]).all()
+    assert lp.count[10, 12] == 25 - 1 and lp.count[0, 0] == 9  # a corner's window holds 3 x 3 of its points
+    folded = p.copy()
+    folded[..., 2] = np.where(x < 0.015, z, z + (x - 0.015))  # the slope along x turns from 0.2 to 1.2
+    folded[10, 12] = np.nan
+    lf = local_planes(folded, window_px=5)
+    assert (lf.variance[5:15, 13:17] > 1e-10).all() and np.nanmax(lf.variance[5:15, 2:11]) < 1e-15
+
+
+def _numpy_local_planes(points, *, window_px):  # type: ignore[no-untyped-def]
+    """local_planes as NumPy computed it on whole planes until 2026-12-08 (the reference)."""
+    import cv2
+
+    p = np.asarray(points, dtype=np.float64)
+    valid = np.isfinite(p[..., 2])
+    ref = np.array([np.nanmedian(p[..., k][valid]) for k in range(3)])
+    qx, qy, qz = (np.where(valid, p[..., k] - ref[k], 0.0) for k in range(3))
+
+    def box(img):  # type: ignore[no-untyped-def]
+        return cv2.boxFilter(img, cv2.CV_64F, (window_px, window_px), normalize=False, borderType=cv2.BORDER_CONSTANT)
+
+    n = box(valid.astype(np.float64))
+    nn = np.maximum(n, 1.0)
+    mx, my, mz = box(qx) / nn, box(qy) / nn, box(qz) / nn
+    st = max(1, window_px // 2)
+    du, dv = [], []
+    for c in (mx, my, mz):
+        du.append(np.full_like(c, np.nan))
+        dv.append(np.full_like(c, np.nan))
+        du[-1][:, st:-st] = c[:, 2 * st :] - c[:, : -2 * st]
+        dv[-1][st:-st, :] = c[2 * st :, :] - c[: -2 * st, :]
+    nx = du[1] * dv[2] - du[2] * dv[1]
+    ny = du[2] * dv[0] - du[0] * dv[2]
+    nz = du[0] * dv[1] - du[1] * dv[0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+        nx, ny, nz = nx / norm, ny / norm, nz / norm
+    with np.errstate(invalid="ignore"):
+        flip = np.einsum("hwk,hwk->hw", np.stack([nx, ny, nz], axis=-1), p) > 0
+    for c in (nx, ny, nz):
+        np.negative(c, out=c, where=flip)
+    cxx, cxy, cxz = box(qx * qx) / nn - mx**2, box(qx * qy) / nn - mx * my, box(qx * qz) / nn - mx * mz
+    cyy, cyz, czz = box(qy * qy) / nn - my**2, box(qy * qz) / nn - my * mz, box(qz * qz) / nn - mz**2
+    var = nx * nx * cxx + ny * ny * cyy + nz * nz * czz + 2 * (nx * ny * cxy + nx * nz * cxz + ny * nz * cyz)
+    total = np.maximum(cxx + cyy + czz, 1e-30)
+    var = np.clip(var, 0.0, None)
+    few = (n < 0.5 * window_px * window_px) | ~valid | ~np.isfinite(var)
+    var[few] = np.nan
+    normal = np.stack([np.where(few, np.nan, c) for c in (nx, ny, nz)], axis=-1)
+    return n, normal, var, var / total
+
+
+def test_the_compiled_local_planes_are_the_numpy_ones_on_a_noisy_capture() -> None:
+    p, _lp, _nm, _ = work("tee", "stereo")
+    for step, window in ((1, 7), (3, 7), (2, 5)):
+        q = np.ascontiguousarray(p[::step, ::step])
+        got = local_planes(q, window_px=window)
+        want = _numpy_local_planes(q, window_px=window)
+        for a, b in zip((got.count, got.normal, got.variance, got.variation), want, strict=True):
+            assert np.array_equal(a, b, equal_nan=True)
