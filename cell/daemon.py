@@ -88,6 +88,17 @@ from perception.helper_process import HelperProcess
 
 logger = logging.getLogger(__name__)
 
+
+def _warm_detector() -> None:
+    """Import the detector and run its compiled kernels once (the first job would wait for it: about a second,
+    7 s on a machine's first run); a failure here is only logged (the job then loads them itself)."""
+    try:
+        from perception.helper_process import preload
+
+        preload()
+    except Exception as err:  # never fatal: the job loads what it needs
+        logger.warning("could not warm up the detector: %s", err)
+
 ACTIVE_STATES = frozenset(CellState) - {CellState.IDLE, CellState.DONE, CellState.FAULT}
 FINAL_JOB_STATES = ("done", "failed", "cancelled", "dry_run", "interrupted")
 
@@ -144,6 +155,8 @@ class Daemon:
             # the surfaces method's second process starts now and warms up while the daemon waits for its first job
             uses_helper = config.detection.helper_process and config.detection.method == "surfaces"
             self.helper = HelperProcess() if uses_helper else None
+            if config.detection.method == "surfaces":  # the detector's modules and compiled kernels, loaded meanwhile
+                threading.Thread(target=_warm_detector, name="detector-warm-up", daemon=True).start()
             self.runner = JobRunner(self.cell, journal=self.journal, status_image=self.status_image,
                                     helper=self.helper)  # fmt: skip
             self.runner.switch_arc_off()  # the previous process may have died with the arc on

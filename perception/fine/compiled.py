@@ -1,6 +1,7 @@
-"""The fine stage's compiled kernels (:mod:`numba`: :mod:`perception.fine.grow`, :mod:`perception.fine.components`)
-run once on a few pixels, so that a detection timed afterwards does not pay for their compilation (2-3 s the
-first time on a machine, then loaded from numba's cache in about a tenth of a second)."""
+"""The fine stage's compiled kernels (:mod:`numba`: :mod:`perception.fine.noise`'s local planes,
+:mod:`perception.fine.components`, :mod:`perception.fine.grow`) run once on a few pixels, so that a detection
+timed afterwards does not pay for their compilation (about 7 s the first time on a machine, then loaded from
+numba's cache in about a second)."""
 
 from __future__ import annotations
 
@@ -11,11 +12,12 @@ def warm_up() -> None:
     """Compile (or load from the cache) every compiled kernel of the fine stage."""
     from perception.fine.components import smooth_components
     from perception.fine.grow import grow
-    from perception.fine.noise import LocalPlanes
+    from perception.fine.noise import LocalPlanes, local_planes
     from perception.fine.types import NoiseModel, Surface
 
     p = np.zeros((4, 4, 3))
     p[..., 2] = 0.5
+    local_planes(p, window_px=3)
     normal = np.zeros((4, 4, 3))
     normal[..., 2] = -1.0
     planes = LocalPlanes(np.full((4, 4), 9.0), normal, np.zeros((4, 4)), np.zeros((4, 4)), 3)
