@@ -209,11 +209,10 @@ def _share(context: Any, arrays: dict[str, np.ndarray]) -> tuple[SharedMemory, L
 _attached: dict[str, tuple[SharedMemory, Any, dict[str, np.ndarray]]] = {}  # the last run's block, opened once
 
 
-def preload(modules: Sequence[str] = PRELOAD, *, compiled: bool = True) -> None:
+def preload(modules: Sequence[str] = PRELOAD) -> None:
     """Import ``modules`` ("package.*": every module of the package) in this process: the helper's first job,
     and a one-off run's before it is timed (the detector's steps import their modules when first run: a second).
-    ``compiled``: and, with the fine stage among them, run its compiled kernels once
-    (:func:`perception.fine.compiled.warm_up`; the helper's jobs do not use them)."""
+    With the fine stage among them, its compiled kernels run once (:func:`perception.fine.compiled.warm_up`)."""
     import importlib
     import pkgutil
 
@@ -222,14 +221,14 @@ def preload(modules: Sequence[str] = PRELOAD, *, compiled: bool = True) -> None:
         if name.endswith(".*"):
             for sub in pkgutil.iter_modules(mod.__path__):
                 importlib.import_module(f"{mod.__name__}.{sub.name}")
-    if compiled and "perception.fine.*" in modules:
+    if "perception.fine.*" in modules:
         from perception.fine.compiled import warm_up
 
         warm_up()
 
 
 def _preload(modules: tuple[str, ...]) -> int:
-    preload(modules, compiled=False)
+    preload(modules)
     return os.getpid()
 
 

@@ -1,7 +1,7 @@
 """The fine stage's compiled kernels (:mod:`numba`: :mod:`perception.fine.noise`'s local planes,
-:mod:`perception.fine.components`, :mod:`perception.fine.grow`) run once on a few pixels, so that a detection
-timed afterwards does not pay for their compilation (about 7 s the first time on a machine, then loaded from
-numba's cache in about a second)."""
+:mod:`perception.fine.components`, :mod:`perception.fine.grow`, :mod:`perception.fine.gaps`' outline pixels)
+run once on a few pixels, so that a detection timed afterwards does not pay for their compilation (about 7 s
+the first time on a machine, then loaded from numba's cache in about a second)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import numpy as np
 def warm_up() -> None:
     """Compile (or load from the cache) every compiled kernel of the fine stage."""
     from perception.fine.components import smooth_components
+    from perception.fine.gaps import _outline_pixels
     from perception.fine.grow import grow
     from perception.fine.noise import LocalPlanes, local_planes
     from perception.fine.types import NoiseModel, Surface
@@ -27,3 +28,5 @@ def warm_up() -> None:
     labels[:, 0] = 0
     floor = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), 0.5, 0.0, 4, np.array([0.0, 0.0, 0.5]), 0.5)
     grow(p, labels, [floor], np.full((4, 4), 1e-3), within_sigma=3.0, rings=2)
+    inside = np.ones((2, 2), bool)
+    _outline_pixels(p.astype(np.float32), 1, 1, inside, inside, floor.normal, floor.offset, 0.5, (1e-3, 5e-5), 0.0)

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
@@ -338,13 +339,8 @@ def _outline_gaps(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: S
         return []
     (y0, y1, x0, x1), filled, inner = window
     # the plane's residual at the pixels of its closed outline only (the window's others are never read)
-    fy, fx = np.nonzero(filled)
-    pts = points_at(full, fy + y0, fx + x0)
-    z = pts[:, 2]
-    res = np.einsum("ik,k->i", np.nan_to_num(pts), s.normal) + s.offset
-    sig = noise_full.sigma_m(np.where(np.isfinite(z), z, s.z_m))
-    hole = inner[fy, fx] & (~np.isfinite(z) | (res < -(gp.behind_m + 4.0 * sig)))
-    on_plane = pts[np.isfinite(z) & (np.abs(res) <= 4.0 * sig)]
+    fy, fx, hole, on_plane = _outline_pixels(full, y0, x0, filled, inner, s.normal, s.offset, s.z_m,
+                                             (noise_full.sigma_1m_m, noise_full.floor_m), gp.behind_m)  # fmt: skip
     px = (fx + x0, fy + y0)
     area: _Window = (full, (y0, y1, x0, x1), [])  # its points are read once, by the first search with lines
     found = _gaps_from_holes(hole, px, intr, s, on_plane, area, noise_full, gp)
@@ -359,6 +355,47 @@ def _outline_gaps(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: S
         if (on_line & ~hole).sum() >= 15:
             found = _gaps_from_holes(hole | on_line, px, intr, s, on_plane, area, noise_full, gp)
     return found
+
+
+IntArray = NDArray[np.int64]
+
+
+@njit(cache=True)
+def _outline_pixels(full: NDArray[np.float32], y0: int, x0: int, filled: NDArray[np.bool_], inner: NDArray[np.bool_],
+                    normal: FloatArray, offset: float, z_m: float, sigma: tuple[float, float],
+                    behind_m: float) -> tuple[IntArray, IntArray, NDArray[np.bool_], FloatArray]:  # fmt: skip
+    """The ``filled`` pixels of an outline's window (first row and column ``y0``, ``x0`` of ``full``), in raster
+    order: their rows and columns in the window, whether each (``inner``) sees through the plane (no depth, or
+    depth more than the noise (4 sigma, ``sigma`` = (at 1 m, floor)) and ``behind_m`` behind it), and the points
+    within the noise of the plane. Compiled, one pass (as NumPy expressions it gathered every point of a large
+    plate's outline first); the values of NumPy's whole-array arithmetic."""
+    n = 0
+    for y in range(filled.shape[0]):
+        for x in range(filled.shape[1]):
+            n += filled[y, x]
+    fy, fx = np.empty(n, np.int64), np.empty(n, np.int64)
+    hole = np.zeros(n, np.bool_)
+    keep = np.zeros(n, np.bool_)
+    pts = np.empty((n, 3))
+    k = 0
+    for y in range(filled.shape[0]):
+        for x in range(filled.shape[1]):
+            if not filled[y, x]:
+                continue
+            q0, q1, q2 = float(full[y0 + y, x0 + x, 0]), float(full[y0 + y, x0 + x, 1]), float(full[y0 + y, x0 + x, 2])
+            fy[k], fx[k] = y, x
+            pts[k, 0], pts[k, 1], pts[k, 2] = q0, q1, q2
+            seen = np.isfinite(q2)
+            res = 0.0  # the residual of the point with NaN taken as 0 (np.nan_to_num)
+            for c, q in enumerate((q0, q1, q2)):
+                res += (0.0 if np.isnan(q) else q) * normal[c]
+            res += offset
+            zz = q2 if seen else z_m
+            sig = max(sigma[0] * (zz * zz), sigma[1])
+            hole[k] = inner[y, x] and (not seen or res < -(behind_m + 4.0 * sig))
+            keep[k] = seen and abs(res) <= 4.0 * sig
+            k += 1
+    return fy, fx, hole, pts[keep]
 
 
 # the organized cloud, the window (y0, y1, x0, x1) of it an outline lies in, and the window's points once read

@@ -367,3 +367,29 @@ def test_a_line_of_holes_among_many_scattered_ones_is_found_from_a_sample_of_the
     on_line = np.abs((pts[:, :2] - [0.02, 0.0]) @ np.array([1.0, -0.3]) / np.hypot(1.0, 0.3)) <= 0.001
     assert on_line.mean() > 0.85  # the gap's points, and the few scattered holes within 1 mm of it
     assert float(np.ptp(pts @ along)) > 0.1
+
+
+def test_an_outlines_pixels_sort_into_holes_and_points_on_the_plate() -> None:
+    """The compiled pass over an outline's pixels (gaps._outline_pixels): on a plate z = 0.5 m, a pixel with no
+    depth and one 5 mm behind see through it (where they lie inside the outline), one 5 mm in front of it and
+    those two are not on it; the rest, in raster order, are."""
+    from perception.fine.gaps import _outline_pixels
+
+    h, w = 10, 12
+    y, x = np.mgrid[:h, :w] * 0.001
+    full = np.stack([x, y, np.full((h, w), 0.5)], axis=-1).astype(np.float32)
+    full[4, 5] = np.nan  # no depth
+    full[5, 6, 2] = 0.505  # behind the plate: through a gap
+    full[6, 7, 2] = 0.495  # in front of it: something standing on it
+    full[2, 3] = np.nan  # no depth on the outline's edge: not inside it
+    filled = np.zeros((6, 8), bool)
+    filled[:, 1:] = True  # the window (rows 1-6, columns 2-9), less its first column
+    inner = np.zeros_like(filled)
+    inner[1:-1, 2:-1] = True
+    normal = np.array([0.0, 0.0, -1.0])
+    fy, fx, hole, on_plane = _outline_pixels(full, 1, 2, filled, inner, normal, 0.5, 0.5, (4e-4, 5e-5), 0.0)
+    assert (fy.tolist(), fx.tolist()) == tuple(a.tolist() for a in np.nonzero(filled))
+    assert sorted(zip(fy[hole] + 1, fx[hole] + 2, strict=True)) == [(4, 5), (5, 6)]
+    off = {(4, 5), (5, 6), (6, 7), (2, 3)}
+    want = [full[r, c] for r, c in zip(fy + 1, fx + 2, strict=True) if (r, c) not in off]
+    assert np.array_equal(on_plane, np.array(want, dtype=np.float64))
