@@ -177,6 +177,10 @@ def detect_one(args: argparse.Namespace) -> int:
                            result.info.get("viewpoint"))  # fmt: skip
     else:
         capture = load_capture(src)
+        if params.method == "surfaces":  # its modules and compiled kernels loaded before the detection is timed
+            from perception.helper_process import preload
+
+            preload()
         try:
             result = detect(capture, params, segmenter=make_segmenter(args))
         except NoSeamFound as err:
