@@ -209,10 +209,11 @@ def _share(context: Any, arrays: dict[str, np.ndarray]) -> tuple[SharedMemory, L
 _attached: dict[str, tuple[SharedMemory, Any, dict[str, np.ndarray]]] = {}  # the last run's block, opened once
 
 
-def preload(modules: Sequence[str] = PRELOAD) -> None:
+def preload(modules: Sequence[str] = PRELOAD, *, coarse: bool = True) -> None:
     """Import ``modules`` ("package.*": every module of the package) in this process: the helper's first job,
     and a one-off run's before it is timed (the detector's steps import their modules when first run: a second).
-    With the fine stage among them, its compiled kernels run once (:func:`perception.fine.compiled.warm_up`)."""
+    With the fine stage among them, its compiled kernels run once (:func:`perception.fine.compiled.warm_up`;
+    ``coarse``: the coarse stage's too, which a helper's jobs do not use)."""
     import importlib
     import pkgutil
 
@@ -224,11 +225,11 @@ def preload(modules: Sequence[str] = PRELOAD) -> None:
     if "perception.fine.*" in modules:
         from perception.fine.compiled import warm_up
 
-        warm_up()
+        warm_up(coarse=coarse)
 
 
 def _preload(modules: tuple[str, ...]) -> int:
-    preload(modules)
+    preload(modules, coarse=False)
     return os.getpid()
 
 

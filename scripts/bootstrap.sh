@@ -56,6 +56,9 @@ if [ ! -x .venv/bin/python ] || [ "$(cat .venv/.setup-stamp 2>/dev/null)" != "$s
     say "ready in $((SECONDS - t0)) s: $(.venv/bin/weldcell --version), $(.venv/bin/python -c \
         'import cv2, open3d, numpy; print(f"OpenCV {cv2.__version__}, Open3D {open3d.__version__}, NumPy {numpy.__version__}")')"
 fi
+# the detector's compiled kernels (numba): compiled once here (about 10 s the first time), then each run loads
+# them from numba's cache instead of compiling them in its first detection
+.venv/bin/python -c 'from perception.fine.compiled import warm_up; warm_up()'
 
 case "$job" in
     demo)

@@ -88,3 +88,13 @@ def _seams_json_written_anywhere_conforms(tmp_path_factory: pytest.TempPathFacto
     bad = invalid_seams_files(tmp_path_factory.getbasetemp())
     if bad:
         pytest.fail(f"seams.json written by the tests does not conform to 'weldcell schema seams': {_report(bad)}")
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _compiled_kernels_ready() -> None:
+    """The detector's compiled kernels loaded (or compiled, on a machine's first run: about 10 s) once per test
+    process before any test, as the daemon, the demo and the helper do when they start: a test that waits a
+    bounded time for a job must not wait for a compiler (scripts/bootstrap.sh compiles them at setup)."""
+    from perception.fine.compiled import warm_up
+
+    warm_up()

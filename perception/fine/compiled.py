@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def warm_up() -> None:
-    """Compile (or load from the cache) every compiled kernel of the fine stage."""
+def warm_up(*, coarse: bool = True) -> None:
+    """Compile (or load from the cache) the compiled kernels of the fine stage: the inner-gap search's (what a
+    helper process's jobs use), and with ``coarse`` the local planes', the smooth pieces' and the growth's."""
     from perception.fine.components import smooth_components
     from perception.fine.gaps import _outline_pixels
     from perception.fine.grow import grow
@@ -18,6 +19,11 @@ def warm_up() -> None:
 
     p = np.zeros((4, 4, 3))
     p[..., 2] = 0.5
+    floor = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), 0.5, 0.0, 4, np.array([0.0, 0.0, 0.5]), 0.5)
+    inside = np.ones((2, 2), bool)
+    _outline_pixels(p.astype(np.float32), 1, 1, inside, inside, floor.normal, floor.offset, 0.5, (1e-3, 5e-5), 0.0)
+    if not coarse:
+        return
     local_planes(p, window_px=3)
     normal = np.zeros((4, 4, 3))
     normal[..., 2] = -1.0
@@ -26,7 +32,4 @@ def warm_up() -> None:
     smooth_components(p, planes, noise, normal_turn_rad=0.7, jump_sigma=6.0)
     labels = np.full((4, 4), -1, np.int32)
     labels[:, 0] = 0
-    floor = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), 0.5, 0.0, 4, np.array([0.0, 0.0, 0.5]), 0.5)
     grow(p, labels, [floor], np.full((4, 4), 1e-3), within_sigma=3.0, rings=2)
-    inside = np.ones((2, 2), bool)
-    _outline_pixels(p.astype(np.float32), 1, 1, inside, inside, floor.normal, floor.offset, 0.5, (1e-3, 5e-5), 0.0)
