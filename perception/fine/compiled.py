@@ -12,7 +12,7 @@ def warm_up(*, coarse: bool = True) -> None:
     """Compile (or load from the cache) the compiled kernels of the fine stage: the inner-gap search's (what a
     helper process's jobs use), and with ``coarse`` the local planes', the smooth pieces' and the growth's."""
     from perception.fine.components import smooth_components
-    from perception.fine.gaps import _outline_pixels
+    from perception.fine.gaps import outline_pixels
     from perception.fine.grow import grow
     from perception.fine.noise import LocalPlanes, local_planes
     from perception.fine.types import NoiseModel, Surface
@@ -21,7 +21,7 @@ def warm_up(*, coarse: bool = True) -> None:
     p[..., 2] = 0.5
     floor = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), 0.5, 0.0, 4, np.array([0.0, 0.0, 0.5]), 0.5)
     inside = np.ones((2, 2), bool)
-    _outline_pixels(p.astype(np.float32), 1, 1, inside, inside, floor.normal, floor.offset, 0.5, (1e-3, 5e-5), 0.0)
+    outline_pixels(p.astype(np.float32), 1, 1, inside, inside, floor.normal, floor.offset, 0.5, (1e-3, 5e-5), 0.0)
     if not coarse:
         return
     local_planes(p, window_px=3)

@@ -339,8 +339,8 @@ def _outline_gaps(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: S
         return []
     (y0, y1, x0, x1), filled, inner = window
     # the plane's residual at the pixels of its closed outline only (the window's others are never read)
-    fy, fx, hole, on_plane = _outline_pixels(full, y0, x0, filled, inner, s.normal, s.offset, s.z_m,
-                                             (noise_full.sigma_1m_m, noise_full.floor_m), gp.behind_m)  # fmt: skip
+    fy, fx, hole, on_plane = outline_pixels(full, y0, x0, filled, inner, s.normal, s.offset, s.z_m,
+                                            (noise_full.sigma_1m_m, noise_full.floor_m), gp.behind_m)  # fmt: skip
     px = (fx + x0, fy + y0)
     area: _Window = (full, (y0, y1, x0, x1), [])  # its points are read once, by the first search with lines
     found = _gaps_from_holes(hole, px, intr, s, on_plane, area, noise_full, gp)
@@ -361,7 +361,7 @@ IntArray = NDArray[np.int64]
 
 
 @njit(cache=True)
-def _outline_pixels(full: NDArray[np.float32], y0: int, x0: int, filled: NDArray[np.bool_], inner: NDArray[np.bool_],
+def outline_pixels(full: NDArray[np.float32], y0: int, x0: int, filled: NDArray[np.bool_], inner: NDArray[np.bool_],
                     normal: FloatArray, offset: float, z_m: float, sigma: tuple[float, float],
                     behind_m: float) -> tuple[IntArray, IntArray, NDArray[np.bool_], FloatArray]:  # fmt: skip
     """The ``filled`` pixels of an outline's window (first row and column ``y0``, ``x0`` of ``full``), in raster

@@ -370,10 +370,10 @@ def test_a_line_of_holes_among_many_scattered_ones_is_found_from_a_sample_of_the
 
 
 def test_an_outlines_pixels_sort_into_holes_and_points_on_the_plate() -> None:
-    """The compiled pass over an outline's pixels (gaps._outline_pixels): on a plate z = 0.5 m, a pixel with no
+    """The compiled pass over an outline's pixels (gaps.outline_pixels): on a plate z = 0.5 m, a pixel with no
     depth and one 5 mm behind see through it (where they lie inside the outline), one 5 mm in front of it and
     those two are not on it; the rest, in raster order, are."""
-    from perception.fine.gaps import _outline_pixels
+    from perception.fine.gaps import outline_pixels
 
     h, w = 10, 12
     y, x = np.mgrid[:h, :w] * 0.001
@@ -387,7 +387,7 @@ def test_an_outlines_pixels_sort_into_holes_and_points_on_the_plate() -> None:
     inner = np.zeros_like(filled)
     inner[1:-1, 2:-1] = True
     normal = np.array([0.0, 0.0, -1.0])
-    fy, fx, hole, on_plane = _outline_pixels(full, 1, 2, filled, inner, normal, 0.5, 0.5, (4e-4, 5e-5), 0.0)
+    fy, fx, hole, on_plane = outline_pixels(full, 1, 2, filled, inner, normal, 0.5, 0.5, (4e-4, 5e-5), 0.0)
     assert (fy.tolist(), fx.tolist()) == tuple(a.tolist() for a in np.nonzero(filled))
     assert sorted(zip(fy[hole] + 1, fx[hole] + 2, strict=True)) == [(4, 5), (5, 6)]
     off = {(4, 5), (5, 6), (6, 7), (2, 3)}
