@@ -3,6 +3,7 @@ planes, coordinates along a line, and the order of points along a curve. Pure fu
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -45,6 +46,40 @@ def median(a: ArrayLike, *, overwrite_input: bool = False) -> np.float64:
     if np.isnan(part[h:].max()):
         return np.float64(np.nan)
     return part[h] if n % 2 else (part[:h].max() + part[h]) / 2
+
+
+def percentile(a: ArrayLike, q: float) -> np.float64:
+    """``np.percentile(a, q)`` of a 1-D float64 array at one percentile ``q`` (linear interpolation), the very
+    value in a fifth of its time (~13 us a call on a few thousand values against ~65 us; the refinement
+    takes a few thousand a capture). The two order statistics around the virtual index ``(n - 1) q / 100`` by
+    one partition (with the last place: a NaN sorts there, and gives NaN as in NumPy), blended as NumPy's
+    ``_lerp`` blends them (from the lower one below a weight of one half, from the upper one from there).
+    Anything else goes to ``np.percentile``."""
+    a = np.asarray(a)
+    n = a.size
+    if a.ndim != 1 or n < 2 or a.dtype != np.float64 or not 0.0 <= q <= 100.0:
+        return np.float64(np.percentile(a, q))
+    v = (n - 1) * (float(q) / 100.0)
+    if v >= n - 1:  # the largest value (NumPy takes the last place for both neighbours)
+        lo = hi = n - 1
+        t = v + 1.0  # its weight as NumPy computes it (from the index -1); the two values are the same
+    else:
+        lo = math.floor(v)
+        hi, t = lo + 1, v - lo
+    part = np.partition(a, sorted({lo, hi, n - 1}))
+    if np.isnan(part[n - 1]):
+        return np.float64(np.nan)
+    x0, x1 = float(part[lo]), float(part[hi])
+    d = x1 - x0
+    return np.float64(x1 - d * (1.0 - t) if t >= 0.5 else x0 + d * t)
+
+
+def cross3(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.cross(a, b)`` of two 3-vectors, the very values (the same products and differences) without its
+    general-shape overhead (~2 us against ~15 us; the fine stage takes thousands)."""
+    a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
+    b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def mean_rows(p: FloatArray) -> FloatArray:

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from perception.fine.cylinder import axis_basis
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
-from perception.fits import mean_rows, median
+from perception.fits import cross3, mean_rows, median, percentile
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,7 @@ def plane_line(a: Surface, b: Surface, near: FloatArray,
                along: FloatArray | None = None) -> tuple[FloatArray, FloatArray] | None:  # fmt: skip
     """Point (nearest ``near``) and unit direction of the intersection of two planes, the direction turned
     to agree with ``along`` when given; None for parallel planes."""
-    u = np.cross(a.normal, b.normal)
+    u = cross3(a.normal, b.normal)
     norm = float(np.linalg.norm(u))
     if norm < 1e-6:
         return None
@@ -166,7 +166,7 @@ def _plane_pair(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surface, p
         return []
     ra, rb = B.residual(qa), A.residual(qb)
     sa, sb = float(median(ra)), float(median(rb))
-    if min(sa, sb) <= 0.0 or max(np.percentile(ra, 75), np.percentile(rb, 75)) < fp.concave_sigma * sig:
+    if min(sa, sb) <= 0.0 or max(percentile(ra, 75), percentile(rb, 75)) < fp.concave_sigma * sig:
         return []
     # the fold is where the faces turn, not only where two fitted facets of a bent panel meet
     wa, wb = _window_points(p, lab, (A.label, B.label), contact_px, fp.crease_window_px)
@@ -202,7 +202,7 @@ def _upper_plate(p: FloatArray, lab: NDArray[np.int32], pairs: tuple[Pair, ...],
     q = q[np.isfinite(q[:, 2])]
     if len(q) == 0:
         return False
-    height = float(np.percentile(L.residual(q), 98))
+    height = float(percentile(L.residual(q), 98))
     for pair in pairs:
         if S.label not in (pair.a, pair.b) or L.label in (pair.a, pair.b):
             continue
@@ -254,7 +254,7 @@ def local_turn(qa: FloatArray, qb: FloatArray, p0: FloatArray, u: FloatArray, m:
     panel turn by the angle between their far-apart middles, but at the line where they meet the panel hardly
     turns; a fold, however blurred, turns there by its whole angle. None when either side has fewer than
     ``min_points`` there."""
-    across = np.cross(u, m)
+    across = cross3(u, m)
     across /= max(float(np.linalg.norm(across)), 1e-12)
     normals = []
     for q in (qa, qb):
@@ -277,7 +277,7 @@ def _standing_height(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surfa
     if len(q) == 0:
         return 0.0
     _, d = line_coords(q, p0, u)
-    return float(np.percentile(d, 98))
+    return float(percentile(d, 98))
 
 
 def _standing_lying(A: Surface, B: Surface, up: FloatArray) -> tuple[Surface, Surface]:
@@ -383,7 +383,7 @@ def _cylinder_pair(A: Surface, B: Surface, pa: FloatArray, pb: FloatArray, noise
     ra, rb = B.residual(pa), A.residual(pb)
     if min(float(median(ra)), float(median(rb))) <= 0.0:
         return []
-    if max(np.percentile(ra, 75), np.percentile(rb, 75)) < fp.concave_sigma * sig:
+    if max(percentile(ra, 75), percentile(rb, 75)) < fp.concave_sigma * sig:
         return []
     S, L = (A, B) if A.radius <= B.radius else (B, A)
     n_bins = max(36, int(np.ceil(2 * np.pi * S.radius / fp.bin_m)))

@@ -19,7 +19,7 @@ from perception.fine.folds import contact_points, rays_onto
 from perception.fine.gap_profile import gap_edges
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
-from perception.fits import median
+from perception.fits import cross3, median, percentile
 from perception.organized import points_at
 
 
@@ -76,11 +76,11 @@ def gap_seams(
         _, v = np.linalg.eigh(np.cov((both - c).T))
         u = v[:, 2] - (v[:, 2] @ n) * n
         u /= np.linalg.norm(u)
-        across = np.cross(n, u)
+        across = cross3(n, u)
         if float((eb.mean(axis=0) - ea.mean(axis=0)) @ across) < 0:
             across = -across
-        edge_a = float(np.percentile((ea - c) @ across, 90))
-        edge_b = float(np.percentile((eb - c) @ across, 10))
+        edge_a = float(percentile((ea - c) @ across, 90))
+        edge_b = float(percentile((eb - c) @ across, 10))
         width = edge_b - edge_a
         if not (gp.min_gap_m <= width <= gp.max_gap_m):
             continue
@@ -501,7 +501,7 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     w = np.linalg.eigvalsh(np.cov((g - c3).T))
     u = u - (u @ s.normal) * s.normal
     u /= np.linalg.norm(u)
-    across = np.cross(s.normal, u)
+    across = cross3(s.normal, u)
     gap_half = 2.0 * float(np.sqrt(max(w[1], 0.0))) + 0.5 * float(noise_full.spacing_m(s.z_m))
     # every test below reads points within twice far_m of the line at most: the plate's and the window's
     # points are taken from a strip that wide once (they are a whole plate's, and there are a few lines)
@@ -539,9 +539,9 @@ def _gap_between(g: FloatArray, u: FloatArray, s: Surface, pp: FloatArray, allp:
     # each plate's edge lies between its last pixel on the plane and the first pixel that sees
     # through the gap; the seam is midway between the two edges
     h_off = (g - c3) @ across
-    last_l, last_r = float(np.percentile(a_off[left], 97)), float(np.percentile(a_off[right], 3))
-    edge_l = 0.5 * (last_l + float(np.percentile(h_off, 3)))
-    edge_r = 0.5 * (last_r + float(np.percentile(h_off, 97)))
+    last_l, last_r = float(percentile(a_off[left], 97)), float(percentile(a_off[right], 3))
+    edge_l = 0.5 * (last_l + float(percentile(h_off, 3)))
+    edge_r = 0.5 * (last_r + float(percentile(h_off, 97)))
     width = edge_r - edge_l
     if not (0.0 < width < 0.006):
         return None
@@ -639,7 +639,7 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
         length = float(np.ptp(t))
         bins = max(1, int(length / 0.002))
         hit = np.bincount(np.clip(((t - t.min()) / 0.002).astype(int), 0, bins - 1), minlength=bins) > 0
-        off = np.abs((left - c) @ np.cross(normal, u))
+        off = np.abs((left - c) @ cross3(normal, u))
         left = left[off > 0.0025]
         if length >= gp.min_length_m and hit.mean() >= 0.4:
             out.append((pts, u))

@@ -23,7 +23,7 @@ from perception.fine.refine import near_points
 from perception.fine.runs import covered_runs
 from perception.fine.surfaces import _fit_plane
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
-from perception.fits import median
+from perception.fits import median, percentile
 
 
 @dataclass(frozen=True)
@@ -121,7 +121,7 @@ def _facing_edges(pa: FloatArray, pb: FloatArray, A: Surface, B: Surface, noise:
     if float((eb.mean(axis=0) - ea.mean(axis=0)) @ across) < 0:
         across = -across
     sa, sb = (ea - c) @ across, (eb - c) @ across
-    edge_a, edge_b = float(np.percentile(sa, 95)), float(np.percentile(sb, 5))
+    edge_a, edge_b = float(percentile(sa, 95)), float(percentile(sb, 5))
     width = edge_b - edge_a
     if not (gp.min_width_m <= width <= gp.max_width_m):
         return None

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from perception.errors import NoSeamFound
 from perception.fine.types import NoiseModel
-from perception.fits import median
+from perception.fits import median, percentile
 
 FloatArray = NDArray[np.float64]
 
@@ -166,7 +166,7 @@ def _sigma_1m(points: NDArray[np.floating], planes: LocalPlanes) -> float:
     k = planes.window_px**2
     # the variance of k points about their own best plane underestimates sigma^2 by (k - 3) / k
     sig = np.sqrt(planes.variance[full] * k / max(k - 3, 1))
-    return max(float(np.percentile(sig / z[full] ** 2, NOISE_PERCENTILE)), FLOOR_M)
+    return max(float(percentile(sig / z[full] ** 2, NOISE_PERCENTILE)), FLOOR_M)
 
 
 WIDE_STEP = 3  # the structured error is measured on planes this many times as wide as the noise model's

@@ -23,7 +23,7 @@ from perception.fine.root import open_root
 from perception.fine.seam_ends import supported_ends
 from perception.fine.surfaces import fit_plane_rows
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
-from perception.fits import median
+from perception.fits import cross3, median, percentile
 from perception.organized import points_at
 
 COPY_SIGMA = 1.5  # see _others_residual
@@ -122,7 +122,7 @@ def _others_residual(q: FloatArray, px: NDArray[np.int64], surfaces: SurfaceSet,
 
 def _side(surface: Surface, other: Surface, p0: FloatArray, u: FloatArray, ref: FloatArray) -> FloatArray:
     """Unit direction in ``surface``'s plane, across the line, towards ``ref`` (a point on that surface)."""
-    v = np.cross(u, surface.normal)
+    v = cross3(u, surface.normal)
     v /= np.linalg.norm(v)
     return v if float((ref - p0) @ v) >= 0 else -v
 
@@ -427,7 +427,7 @@ def _reach(d: FloatArray, res: FloatArray, sig: FloatArray, rp: RefineParams) ->
     percentile of the points within its noise (``res`` their distances to its plane) on its side, within the
     band; the band where fewer than ten are."""
     own = (d > 0.0) & (d <= rp.band_m) & (res <= rp.inlier_sigma * sig)
-    return float(np.percentile(d[own], 99.0)) if own.sum() >= 10 else rp.band_m
+    return float(percentile(d[own], 99.0)) if own.sum() >= 10 else rp.band_m
 
 
 def _seen_faces(q: FloatArray, planes: tuple[Surface, Surface], line0: FloatArray,
@@ -563,7 +563,7 @@ def _short_of_far_edge(d: FloatArray, on: NDArray[np.bool_], margin: FloatArray,
     """Per point: not within ``margin`` of where the face's support ends, when it ends inside the band."""
     if on.sum() < 10:
         return on
-    far = float(np.percentile(d[on], 99.0))
+    far = float(percentile(d[on], 99.0))
     if far >= band_m - float(median(margin[on])):
         return np.ones_like(on)
     return d < far - margin
@@ -574,7 +574,7 @@ def _face_sigma(res: FloatArray, sig: FloatArray, side: NDArray[np.bool_]) -> Fl
     (from the points nearest the face within the noise), at most five times the capture's."""
     if res.size < 10:
         return sig
-    core = res[res <= np.percentile(res, 80)]
+    core = res[res <= percentile(res, 80)]
     own = 1.4826 * float(median(core)) / 0.7  # the median of |r| over the inner 80% of a normal: 0.7 MAD
     typical = float(median(sig[side]))
     return np.maximum(sig, np.clip(own, typical, 5.0 * typical))
@@ -584,7 +584,7 @@ def _towards(S: Surface, u: FloatArray, s: SeamCurve) -> FloatArray:
     """A point on S beside the seam: the seam's midpoint moved into S (along S's plane, away from the other
     surface's normal side)."""
     other_n = s.normals_b[0] if S.label == s.surfaces[0] else s.normals_a[0]
-    v = np.cross(u, S.normal)
+    v = cross3(u, S.normal)
     v /= np.linalg.norm(v)
     # S extends from the fold towards the side the other face's normal points to
     v = v if float(v @ other_n) > 0 else -v

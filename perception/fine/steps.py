@@ -26,7 +26,7 @@ from perception.fine.gaps import best_line
 from perception.fine.parallel import COHERENT_APART
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
-from perception.fits import median, outer_boundary, trimmed_line
+from perception.fits import cross3, median, outer_boundary, percentile, trimmed_line
 
 
 @dataclass(frozen=True)
@@ -102,7 +102,7 @@ def _step_along(pu: FloatArray, outward: FloatArray, up: Surface, low: Surface, 
     both there along it."""
     n = low.normal
     c, u = _edge_axis(pu, n)
-    across = np.cross(n, u)
+    across = cross3(n, u)
     if float((outward - c) @ across) < 0:
         across = -across  # from the upper plate towards the lower one
     # the edge face is seen when the camera is on its outer side at under 75 degrees (somewhere along it: the
@@ -230,7 +230,7 @@ def _edge_offset(full: NDArray[np.float32], intr: CameraIntrinsics, noise: Noise
     close = bool(np.any(band < sp.on_plane_sigma * sig))
     if boundary and close:
         return None  # plates within each other's noise bands, and no edge face: nothing tells the step apart
-    edge_up = _crossing(a_off, r_low > 0.5 * h) if close else float(np.percentile(a_off[on_up], 98))
+    edge_up = _crossing(a_off, r_low > 0.5 * h) if close else float(percentile(a_off[on_up], 98))
     near_up = on_up & (a_off > edge_up - 0.004)
     near_low = on_low & (a_off > edge_up) & (a_off < edge_up + 0.008)
     if not near_up.any() or not near_low.any():

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.fine.types import FloatArray, NoiseModel, Surface, SurfaceSet
+from perception.fits import percentile
 
 ABOVE_SHARE = 0.97  # at least this share of all points lies on or above the support
 MIN_SHARE = 0.08  # and it holds at least this share of the labelled pixels (all its pieces together)
@@ -134,7 +135,7 @@ def on_table(points: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseMod
         c, n, around = local
         res = np.abs((x - c) @ n)
         spread = max(float(noise.sigma_m(s.z_m)), 1.4826 * float(np.median(np.abs((around - c) @ n))))
-        if float(np.median(res)) <= spread and float(np.percentile(res, 90)) <= 2.5 * spread:
+        if float(np.median(res)) <= spread and float(percentile(res, 90)) <= 2.5 * spread:
             out.add(s.label)
     return frozenset(out)
 
@@ -148,7 +149,7 @@ def _on_plane(x: FloatArray, plane: Surface, noise: NoiseModel) -> bool:
     if len(x) < 10:
         return False
     r = np.abs(plane.residual(x)) / (_flatness(noise, x[:, 2]) + noise.sigma_m(x[:, 2]))
-    return bool(np.median(r) <= 1.0 and np.percentile(r, 90) <= 2.5)
+    return bool(np.median(r) <= 1.0 and percentile(r, 90) <= 2.5)
 
 
 def table_sample(points: NDArray[np.floating], labels: NDArray[np.int32], support: frozenset[int],
@@ -235,7 +236,7 @@ def _carries(p: NDArray[np.floating], surfaces: SurfaceSet, noise: NoiseModel, p
     # stretched sample short of the wall standing on it
     cos_in = np.abs(own @ s.normal) / np.linalg.norm(own, axis=1)
     stretched = noise.spacing_m(own[:, 2]) / np.maximum(cos_in, 0.1)
-    grow = FOOTPRINT_GROW_M + 2.0 * float(np.percentile(stretched, 95))
+    grow = FOOTPRINT_GROW_M + 2.0 * float(percentile(stretched, 95))
     off = off[:: max(1, len(off) // 2000)]
     e12 = np.column_stack([e1, e2])
     return footprint_share(off @ e12, own @ e12, grow) >= CARRY_SHARE

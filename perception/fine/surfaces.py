@@ -28,7 +28,7 @@ from perception.fine.grow import grow
 from perception.fine.noise import LocalPlanes
 from perception.fine.parallel import split_parallel
 from perception.fine.types import NoiseModel, Surface, SurfaceSet
-from perception.fits import mean_rows, median, sum_rows
+from perception.fits import mean_rows, median, percentile, sum_rows
 
 FloatArray = NDArray[np.float64]
 
@@ -336,7 +336,7 @@ def _try_cylinder(q: FloatArray, normals: FloatArray, tol: FloatArray, label: in
             break
         if inl.mean() < 0.5 * min_share:
             return None  # not nearly a cylinder: refitting would not make it one
-        sel = cres <= max(float(np.percentile(cres, 60)), float(median(tol)))
+        sel = cres <= max(float(percentile(cres, 60)), float(median(tol)))
         if sel.sum() < max(min_points, 20):
             return None
     if inl.mean() < min_share or inl.sum() < min_points or not _two_dimensional(q[inl], spacing, sp):
@@ -589,7 +589,7 @@ def _merge_coplanar_once(p: FloatArray, labels: NDArray[np.int32], surfaces: lis
         # any tilt about them; when its points lie on the larger's plane as closely as the larger's own do,
         # that is its plane
         spread = max(sig, big.rms_m)
-        if surfaces[small].rms_m <= 0.5 * sig and median(res) <= spread and np.percentile(res, 90) <= 2.5 * spread:
+        if surfaces[small].rms_m <= 0.5 * sig and median(res) <= spread and percentile(res, 90) <= 2.5 * spread:
             on_plane_of.setdefault(small, []).append(big.label)
     # ... absorbed into that plane only when it is the one plane it lies on, it is joined to nothing else
     # (a piece in a fold's band lies on both faces' planes, and must not join them), and that plane is not

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from perception.fine.folds import FoldParams, joint_type, line_coords
 from perception.fine.support import table_around, table_sample
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, SurfaceSet
-from perception.fits import connected_components, fit_plane, median
+from perception.fits import connected_components, fit_plane, median, percentile
 
 
 @dataclass(frozen=True)
@@ -201,15 +201,15 @@ def _fold(q: FloatArray, a: WidePlane, b: WidePlane, reach: float, tol: float,
     # the planes' tolerance ``tol``: a face the sensor bends leans over its foot); a convex edge's lie behind
     if float(np.median(xb[nb] @ a.normal + a.offset)) < -tol or float(np.median(xa[na] @ b.normal + b.offset)) < -tol:
         return None
-    lo = max(float(np.percentile(ta[na], 2)), float(np.percentile(tb[nb], 2)))
-    hi = min(float(np.percentile(ta[na], 98)), float(np.percentile(tb[nb], 98)))
+    lo = max(float(percentile(ta[na], 2)), float(percentile(tb[nb], 2)))
+    hi = min(float(percentile(ta[na], 98)), float(percentile(tb[nb], 98)))
     if hi - lo < wp.min_length_m:
         return None
     span_a, span_b = (ta >= lo) & (ta <= hi), (tb >= lo) & (tb <= hi)
     if span_a.sum() < 5 or span_b.sum() < 5:
         return None
     # each a face: reaching well beyond the rounding (a strip fitted across the rounding itself does not)
-    extent = min(float(np.percentile(da[span_a], 90)), float(np.percentile(db[span_b], 90)))
+    extent = min(float(percentile(da[span_a], 90)), float(percentile(db[span_b], 90)))
     if extent < 2.0 * reach:
         return None
     return np.array([p0 + lo * u, p0 + hi * u]), extent

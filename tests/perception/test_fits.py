@@ -10,6 +10,7 @@ import pytest
 
 from perception.fits import (
     connected_components,
+    cross3,
     fit_line,
     fit_plane,
     fit_plane_robust,
@@ -19,6 +20,7 @@ from perception.fits import (
     order_along_curve,
     orient_towards,
     outer_boundary,
+    percentile,
     plane_intersection,
     sum_rows,
     trimmed_line,
@@ -126,6 +128,37 @@ def test_sum_rows_and_mean_rows_are_numpys_own_values_bit_for_bit(order: str) ->
         assert np.array_equal(sum_rows(p), p.sum(axis=0))
         assert np.array_equal(sum_rows(p, w), (w[:, None] * p).sum(axis=0))
         assert np.array_equal(mean_rows(p), p.mean(axis=0))
+
+
+def test_percentile_is_numpys_own_value_bit_for_bit() -> None:
+    """Every percentile NumPy's default (linear) method gives, the very value: sizes 2 to 20 000, ties, a NaN (NaN
+    as NumPy), infinities (their NaN differences as NumPy's), the ends 0 and 100."""
+    rng = np.random.default_rng(5)
+    qs = (0, 1, 2.5, 5, 10, 25, 50, 60, 75, 80, 90, 95, 97, 98, 99.0, 100, 33.3)
+    for trial in range(1500):
+        n = int(rng.integers(2, 200)) if trial % 10 else int(rng.integers(2, 20000))
+        a = rng.normal(size=n) * 10.0 ** rng.uniform(-4, 2)
+        if trial % 7 == 0:
+            a = np.round(a, 1)  # ties
+        for every, value in ((13, np.nan), (17, np.inf), (19, -np.inf)):
+            if trial % every == 0:
+                a[rng.integers(n)] = value
+        q = qs[trial % len(qs)]
+        with np.errstate(invalid="ignore"):
+            assert np.array_equal(percentile(a, q), np.percentile(a, q), equal_nan=True), (n, q)
+    # the blend itself: 99th of 0..10 is 9.9 by the upper value's side (weight 0.9), 12.5th of 0, 8 is 1
+    assert percentile(np.arange(11.0), 99.0) == np.float64(10.0) - np.float64(1.0) * (1.0 - (10 * 0.99 - 9))
+    assert percentile(np.array([8.0, 0.0]), 12.5) == 1.0
+    # not a 1-D float64 array: NumPy's own answer
+    assert percentile(np.array([[1.0, 3.0], [2.0, 4.0]]), 50) == 2.5 and percentile(np.array([1, 2, 3, 4]), 50) == 2.5
+
+
+def test_cross3_is_numpys_cross_bit_for_bit() -> None:
+    rng = np.random.default_rng(6)
+    for _ in range(2000):
+        a, b = rng.normal(size=3) * 10.0 ** rng.uniform(-3, 3), rng.normal(size=3)
+        assert np.array_equal(cross3(a, b), np.cross(a, b))
+    assert cross3(np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])).tolist() == [0.0, 0.0, 1.0]
 
 
 def test_a_trimmed_line_ignores_a_third_of_its_points_on_another_face() -> None:
