@@ -134,6 +134,35 @@ def test_automatic_prompts_find_the_seam() -> None:
     assert rep.rmse_m < 0.0002
 
 
+def test_blas_runs_on_one_thread_during_a_detection_and_as_before_after() -> None:
+    """The detector's BLAS calls run on one thread (a second one only waits on the helper's core); the
+    process's own setting is back once it returns, and after a detection that raised."""
+    from threadpoolctl import ThreadpoolController
+
+    from perception.segment_default import GraphSegmenter
+
+    seen: list[int] = []
+
+    class Watching(GraphSegmenter):
+        def segment(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+            seen.extend(lib.num_threads for lib in ThreadpoolController().select(user_api="blas").lib_controllers)
+            return super().segment(*args, **kwargs)
+
+    blas = ThreadpoolController().select(user_api="blas")
+    with blas.limit(limits=2):
+        before = [lib.num_threads for lib in blas.lib_controllers]
+        out = detect(rendered("t_joint").capture, DetectParams(method="refined"), segmenter=Watching())
+        assert len(out.seams) == 1 and seen and set(seen) == {1}
+        assert [lib.num_threads for lib in ThreadpoolController().select(user_api="blas").lib_controllers] == before
+        seen.clear()
+        base = t_joint()
+        plate = render(Scene("plate", "", base.parts[:2], (), base.camera), noise="structured").capture
+        with pytest.raises(NoSeamFound):
+            detect(plate, DetectParams(method="refined"), segmenter=Watching())
+        assert seen and set(seen) == {1}
+        assert [lib.num_threads for lib in ThreadpoolController().select(user_api="blas").lib_controllers] == before
+
+
 def test_a_lone_plate_has_no_seam() -> None:
     base = t_joint()
     scene = Scene("plate", "", base.parts[:2], (), base.camera)
