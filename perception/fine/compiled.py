@@ -1,7 +1,8 @@
 """The fine stage's compiled kernels (:mod:`numba`: :mod:`perception.fine.noise`'s local planes,
-:mod:`perception.fine.components`, :mod:`perception.fine.grow`, :mod:`perception.fine.gaps`' outline pixels)
-run once on a few pixels, so that a detection timed afterwards does not pay for their compilation (about 7 s
-the first time on a machine, then loaded from numba's cache in about a second)."""
+:mod:`perception.fine.components`, :mod:`perception.fine.grow`, :mod:`perception.fine.gaps`' outline pixels,
+:mod:`perception.fine.biweight`) run once on a few points, so that a detection timed afterwards does not pay
+for their compilation (about 8 s the first time on a machine, then loaded from numba's cache in about a
+second)."""
 
 from __future__ import annotations
 
@@ -9,8 +10,10 @@ import numpy as np
 
 
 def warm_up(*, coarse: bool = True) -> None:
-    """Compile (or load from the cache) the compiled kernels of the fine stage: the inner-gap search's (what a
-    helper process's jobs use), and with ``coarse`` the local planes', the smooth pieces' and the growth's."""
+    """Compile (or load from the cache) the compiled kernels of the fine stage: the refinement's and the
+    inner-gap search's (what a helper process's jobs use), and with ``coarse`` the local planes', the smooth
+    pieces' and the growth's."""
+    from perception.fine.biweight import biweight_plane
     from perception.fine.components import smooth_components
     from perception.fine.gaps import outline_pixels
     from perception.fine.grow import grow
@@ -22,6 +25,7 @@ def warm_up(*, coarse: bool = True) -> None:
     floor = Surface(0, "plane", np.array([0.0, 0.0, -1.0]), 0.5, 0.0, 4, np.array([0.0, 0.0, 0.5]), 0.5)
     inside = np.ones((2, 2), bool)
     outline_pixels(p.astype(np.float32), 1, 1, inside, inside, floor.normal, floor.offset, 0.5, (1e-3, 5e-5), 0.0)
+    biweight_plane(p.reshape(-1, 3), np.ones(16))
     if not coarse:
         return
     local_planes(p, window_px=3)

@@ -17,19 +17,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from perception.capture import CameraIntrinsics
+from perception.fine.biweight import biweight_plane
 from perception.fine.cylinder import axis_basis, circle_fit_across
 from perception.fine.folds import line_coords, plane_line, rays_onto, ring_points
 from perception.fine.root import open_root
 from perception.fine.seam_ends import supported_ends
-from perception.fine.surfaces import fit_plane_rows
 from perception.fine.types import FloatArray, NoiseModel, SeamCurve, Surface, SurfaceSet
 from perception.fits import cross3, median, percentile
 from perception.organized import points_at
 
 COPY_SIGMA = 1.5  # see _others_residual
 ROOT_RADIUS_M = 0.008  # a V-groove's root profile is traced this far from the bevels' intersection at most
-TUKEY_C = 4.685  # Tukey's biweight constant: 95% efficiency on normal noise
-TUKEY_SETTLED_M = 1e-6  # the biweight stops when the plane moves less than a micrometre at the farthest point
 # a straight seam's planes are refitted on every k-th of the points near it, and of those beyond the band, to about
 # this many of each: with more the seams move by hundredths of a millimetre at most (dev zoo: RMSE 0.138 mm with all
 # of them, 0.137 with 16 000, 0.146 with 8 000), and a close capture's bands hold 100 000 and more
@@ -503,14 +501,15 @@ def _fragments(groups: list[tuple[int, NDArray[np.intp]]], res: FloatArray, sig:
 
 def _refit(S: Surface, S0: Surface, near: FloatArray, far: FloatArray, weight_far: float,
            noise: NoiseModel | None = None) -> Surface:  # fmt: skip
-    """``S`` refitted on ``near`` (weight 1) and ``far`` (weight ``weight_far``), normal on ``S0``'s side. With
-    the ``noise`` model: refitted on the points of the plane most of ``near`` lie on instead, when the fit
-    leaves too many of them outside the noise across it, and that plane holds more and leaves out points on
-    one side of it only (:mod:`perception.fine.dominant_plane`: another surface close beside a narrow face)."""
+    """``S`` refitted (Tukey's biweight) on ``near`` (weight 1) and ``far`` (weight ``weight_far``), normal on
+    ``S0``'s side. With the ``noise`` model: refitted on the points of the plane most of ``near`` lie on instead,
+    when the fit leaves too many of them outside the noise across it, and that plane holds more and leaves out
+    points on one side of it only (:mod:`perception.fine.dominant_plane`: another surface close beside a narrow
+    face)."""
     from perception.fine.dominant_plane import dominant_plane, one_sided, within_noise
 
     def fit(a: FloatArray, b: FloatArray) -> tuple[FloatArray, float]:
-        return _robust_plane_fit(np.concatenate([a, b]), np.concatenate([np.ones(len(a)), np.full(len(b), weight_far)]))
+        return biweight_plane(np.concatenate([a, b]), np.concatenate([np.ones(len(a)), np.full(len(b), weight_far)]))
 
     n, off = fit(near, far)
     if noise is not None and (start := dominant_plane(near, n, off, noise)) is not None:
@@ -521,42 +520,6 @@ def _refit(S: Surface, S0: Surface, near: FloatArray, far: FloatArray, weight_fa
     if n @ S0.normal < 0:
         n, off = -n, -off
     return replace(S, normal=n, offset=off)
-
-
-def _robust_plane_fit(p: FloatArray, weights: FloatArray, *, iterations: int = 8) -> tuple[FloatArray, float]:
-    """The plane of ``p`` (each point weighted by ``weights``) fitted with Tukey's biweight: a point's weight
-    falls smoothly to zero at TUKEY_C robust sigmas (the residuals' MAD), so that the few points of another
-    surface that pass the gates (the last pixel row of a convex edge beside a face seen a few pixels wide)
-    do not tilt the plane, while the face's own noise keeps 95% of the least-squares efficiency. Every
-    iteration works in the same few arrays (a fresh array of a large fit's size costs its page faults); each
-    value is the one of ``w = weights * np.where(np.abs(x) < 1, (1 - x * x) ** 2, 0)``."""
-    rows = np.ascontiguousarray(p.T)  # the (3, N) layout every refit's moments are taken in
-    work = (np.empty_like(rows), np.empty_like(rows))
-    n, off, _ = fit_plane_rows(p, rows, weights, work=work)
-    r, a, w = np.empty(len(p)), np.empty(len(p)), np.empty(len(p))
-    cut = np.empty(len(p), dtype=bool)
-    reach = float(np.sqrt(np.max(rows[0] ** 2 + rows[1] ** 2 + rows[2] ** 2)))  # the farthest point's range
-    for _ in range(iterations):
-        np.matmul(p, n, out=r)
-        r += off
-        scale = 1.4826 * float(median(np.abs(r, out=a), overwrite_input=True))
-        if scale <= 0.0:
-            break
-        r /= TUKEY_C * scale  # x, the residual in units of the biweight's cut-off
-        np.logical_not(np.less(np.abs(r, out=a), 1.0, out=cut), out=cut)
-        np.multiply(r, r, out=a)
-        np.subtract(1.0, a, out=a)
-        np.multiply(a, a, out=a)
-        np.multiply(weights, a, out=w)
-        w[cut] = 0.0
-        if w.sum() <= 0.0 or np.count_nonzero(w) < 10:
-            break
-        n_new, off_new, _ = fit_plane_rows(p, rows, w, work=work)
-        moved = abs(off_new - off) + float(np.linalg.norm(n_new - n)) * reach
-        n, off = n_new, off_new
-        if moved < TUKEY_SETTLED_M:
-            break  # settled: the next weights would move it less still
-    return n, off
 
 
 def _short_of_far_edge(d: FloatArray, on: NDArray[np.bool_], margin: FloatArray, band_m: float) -> NDArray[np.bool_]:

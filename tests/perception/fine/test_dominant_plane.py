@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from perception.fine.biweight import biweight_plane
 from perception.fine.dominant_plane import COS_FLOOR, dominant_plane, normal_sigma, one_sided, within_noise
-from perception.fine.refine import _robust_plane_fit
 from perception.fine.types import NoiseModel
 
 NOISE = NoiseModel(sigma_1m_m=0.003, floor_m=5e-5, pixel_angle_rad=0.0015)  # 1.27 mm at 0.65 m
@@ -48,13 +48,13 @@ def test_a_narrow_face_with_its_edge_face_beside_it_is_fitted_on_its_own_points(
     edge = _noisy(rng, centre + 0.015 * u + rng.uniform(-0.015, 0.015, (300, 1)) * v
                   + rng.uniform(0.0, 0.008, (300, 1)) * side_n)  # fmt: skip
     pts = np.vstack([side, edge])
-    n, off = _robust_plane_fit(pts, np.ones(len(pts)))
+    n, off = biweight_plane(pts, np.ones(len(pts)))
     assert _angle_deg(n, side_n) > 3.0  # pulled off by the edge face
     start = dominant_plane(pts, n, off, NOISE)
     assert start is not None
     on = within_noise(pts, *start, NOISE)
     assert on[:600].mean() > 0.9 and on[600:].mean() < 0.3
-    n2, off2 = _robust_plane_fit(pts[on], np.ones(int(on.sum())))
+    n2, off2 = biweight_plane(pts[on], np.ones(int(on.sum())))
     assert _angle_deg(n2, side_n) < 1.5 < 3.0 < _angle_deg(n, side_n)
     assert within_noise(pts, n2, off2, NOISE).sum() > within_noise(pts, n, off, NOISE).sum()
     # what the side's plane leaves out is the edge face, all in front of it (towards the camera)
@@ -68,7 +68,7 @@ def test_a_clean_face_is_left_to_its_fit() -> None:
     v = np.cross(normal, u)
     pts = _noisy(rng, np.array([0.05, 0.0, 0.7]) + rng.uniform(-0.03, 0.03, (800, 1)) * u
                  + rng.uniform(-0.03, 0.03, (800, 1)) * v)  # fmt: skip
-    n, off = _robust_plane_fit(pts, np.ones(len(pts)))
+    n, off = biweight_plane(pts, np.ones(len(pts)))
     assert within_noise(pts, n, off, NOISE).mean() > 0.95
     assert dominant_plane(pts, n, off, NOISE) is None
     assert dominant_plane(pts[:5], n, off, NOISE) is None  # too few points to judge

@@ -14,12 +14,11 @@ from perception.fine.folds import fold_seams
 from perception.fine.noise import estimate_noise, local_planes
 from perception.fine.refine import (
     RefineParams,
-    _robust_plane_fit,
     _seen_faces,
     refine_seams,
 )
 from perception.fine.support import find_support
-from perception.fine.surfaces import _fit_plane, segment_surfaces
+from perception.fine.surfaces import segment_surfaces
 from perception.fine.types import NoiseModel, SeamCurve, Surface
 from perception.fine.visibility import clip_to_view
 from sim_fakes.render import StereoSensor, render
@@ -75,27 +74,6 @@ def test_the_whole_faces_average_out_a_stereo_cameras_correlated_noise() -> None
     assert np.mean(rms) < 5e-5
 
 
-def test_a_few_points_of_another_surface_do_not_tilt_a_narrow_face() -> None:
-    # a face 9 mm across and 60 mm long with 0.3 mm of noise, and along one of its edges four points of the
-    # next surface 3 mm off it (the last pixel row of a convex edge): least squares tilts the face by degrees
-    # (4.8); Tukey's biweight stays within 0.3 degrees of the face's own plane (the plane of its points alone,
-    # itself uncertain by 0.6 degrees at this noise: the two estimators weigh the face's own tails differently)
-    rng = np.random.default_rng(3)
-    n = 120
-    x, y = rng.uniform(0.0, 0.060, n), rng.uniform(0.0, 0.009, n)
-    face = np.column_stack([x, y, 0.8 + 3e-4 * rng.standard_normal(n)])
-    stray = np.column_stack([rng.uniform(0.0, 0.060, 4), np.full(4, 0.0092), np.full(4, 0.8 - 0.003)])
-    pts = np.concatenate([face, stray])
-    w = np.ones(len(pts))
-    own = _fit_plane(face)[0]
-
-    def degrees_off(normal: np.ndarray) -> float:
-        return float(np.degrees(np.arccos(min(1.0, abs(float(normal @ own))))))
-
-    assert degrees_off(_fit_plane(pts, w)[0]) > 3.0
-    assert degrees_off(_robust_plane_fit(pts, w)[0]) < 0.3
-
-
 def test_a_seam_ends_where_its_faces_segmented_pixels_end_not_where_blurred_support_does() -> None:
     # a seam along x at z = 0.5 m between face 0 (normal -z) and face 1 (normal -y), refined out to x = 43 mm;
     # face 1's segmented pixels (work resolution, 2 mm apart) stop at x = 40 mm, face 0's run on to 60 mm,
@@ -115,27 +93,6 @@ def test_a_seam_ends_where_its_faces_segmented_pixels_end_not_where_blurred_supp
     np.testing.assert_allclose(out.points, [[0.0, 0.0, 0.5], [0.040 + 0.5 * spacing, 0.0, 0.5]], atol=1e-12)
     # a face with no segmented pixels near the seam leaves it as it was (nothing to say where it ends)
     assert _within_segmentation(seam, (face0, np.zeros(len(x0), np.int32)), nm, 2, RefineParams()) is seam
-
-
-def test_the_biweight_stops_when_settled_within_a_micrometre_of_its_full_run(monkeypatch) -> None:
-    """A plate's points (0.5 mm noise) with a tenth of them from another face 5 mm off: the biweight stops once
-    the plane moves less than TUKEY_SETTLED_M at the farthest point, and lands within that of the plane all
-    eight iterations give; both within 0.05 mm of the true plane (z = 0.6 m)."""
-    import perception.fine.refine as refine_module
-
-    rng = np.random.default_rng(3)
-    p = np.column_stack([rng.uniform(-0.05, 0.05, 4000), rng.uniform(-0.05, 0.05, 4000), np.full(4000, 0.6)])
-    p[:, 2] += rng.normal(0.0, 0.0005, 4000)
-    p[:400, 2] -= 0.005
-    w = np.ones(len(p))
-    n_settled, off_settled = refine_module._robust_plane_fit(p, w)
-    settled = refine_module.TUKEY_SETTLED_M
-    monkeypatch.setattr(refine_module, "TUKEY_SETTLED_M", 0.0)
-    n_full, off_full = refine_module._robust_plane_fit(p, w)
-    reach = float(np.linalg.norm(p, axis=1).max())
-    assert abs(off_settled - off_full) + np.linalg.norm(n_settled - n_full) * reach < 2 * settled
-    for n, off in ((n_settled, off_settled), (n_full, off_full)):
-        assert abs(n[2]) > np.cos(np.radians(0.1)) and abs(abs(off) - 0.6) < 5e-5
 
 
 @pytest.mark.parametrize(("family", "seed"), [("step", 23), ("ribs", 9)])
