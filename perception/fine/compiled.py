@@ -1,8 +1,8 @@
 """The fine stage's compiled kernels (:mod:`numba`: :mod:`perception.fine.noise`'s local planes,
 :mod:`perception.fine.components`, :mod:`perception.fine.grow`, :mod:`perception.fine.gaps`' outline pixels,
-:mod:`perception.fine.biweight`) run once on a few points, so that a detection timed afterwards does not pay
-for their compilation (about 8 s the first time on a machine, then loaded from numba's cache in about a
-second)."""
+:mod:`perception.fine.biweight`, :mod:`perception.fine.adjacency`'s disc) run once on a few points, so that a
+detection timed afterwards does not pay for their compilation (about 8 s the first time on a machine, then
+loaded from numba's cache in about a second)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ def warm_up(*, coarse: bool = True) -> None:
     """Compile (or load from the cache) the compiled kernels of the fine stage: the refinement's and the
     inner-gap search's (what a helper process's jobs use), and with ``coarse`` the local planes', the smooth
     pieces' and the growth's."""
+    from perception.fine.adjacency import dilate_disc
     from perception.fine.biweight import biweight_plane
     from perception.fine.components import smooth_components
     from perception.fine.gaps import outline_pixels
@@ -29,6 +30,7 @@ def warm_up(*, coarse: bool = True) -> None:
     if not coarse:
         return
     local_planes(p, window_px=3)
+    dilate_disc(inside, 20)
     normal = np.zeros((4, 4, 3))
     normal[..., 2] = -1.0
     planes = LocalPlanes(np.full((4, 4), 9.0), normal, np.zeros((4, 4)), np.zeros((4, 4)), 3)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.fine.adjacency import adjacent_pairs, plane_partners
+from perception.fine.adjacency import adjacent_pairs, dilate_disc, plane_partners
 
 from .scenes import rendered, work
 
@@ -66,3 +66,29 @@ def test_plane_partners_are_the_planes_with_a_plane_at_the_cosine_asked_for() ->
         expected = {a for (a, _), c in cos.items() if lo <= c <= hi}
         assert plane_partners(surf, min_cos=lo, max_cos=hi) == expected
     assert plane_partners(surf, min_cos=-1.0, exclude={planes[0].label}) <= {s.label for s in planes[1:]}
+
+
+def test_dilate_disc_is_opencvs_dilation_by_its_ellipse_pixel_for_pixel() -> None:
+    """Every reach from 1 to 30 pixels (OpenCV's own below OPENCV_MAX_R, the compiled one above), on random
+    masks from a few scattered pixels to a third set, windows 1 to 150 pixels a side (the image's border
+    counts as unset): the very pixels of ``cv2.dilate`` with the (2r + 1)-pixel ellipse."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    for r in range(1, 31):
+        ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        for _ in range(6):
+            h, w = rng.integers(1, 150, 2)
+            m = rng.uniform(size=(h, w)) < rng.uniform(0.0005, 0.3)
+            assert np.array_equal(dilate_disc(m, r), cv2.dilate(m.astype(np.uint8), ker).astype(bool)), r
+
+
+def test_dilate_disc_reaches_the_ellipses_half_width_at_each_row() -> None:
+    # one pixel dilated by 12: the ellipse kernel itself, 12 pixels either side on its centre row, the pixel
+    # alone on its top and bottom rows (12 above and below), nothing beyond; symmetric both ways
+    m = np.zeros((41, 41), bool)
+    m[20, 20] = True
+    out = dilate_disc(m, 12)
+    assert out[20].sum() == 25 and out[20, 8] and not out[20, 7]
+    assert out[8].sum() == 1 and out[8, 20] and not out[7].any() and not out[33].any()
+    assert np.array_equal(out, out[::-1]) and np.array_equal(out, out[:, ::-1])
