@@ -1,8 +1,8 @@
 """The fine stage's compiled kernels (:mod:`numba`: :mod:`perception.fine.noise`'s local planes,
 :mod:`perception.fine.components`, :mod:`perception.fine.grow`, :mod:`perception.fine.gaps`' outline pixels,
-:mod:`perception.fine.biweight`, :mod:`perception.fine.adjacency`'s disc) run once on a few points, so that a
-detection timed afterwards does not pay for their compilation (about 8 s the first time on a machine, then
-loaded from numba's cache in about a second)."""
+:mod:`perception.fine.biweight`, :mod:`perception.fine.adjacency`'s disc, :mod:`perception.fine.cylinder`'s
+fit) run once on a few points, so that a detection timed afterwards does not pay for their compilation (about
+8 s the first time on a machine, then loaded from numba's cache in about a second)."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ def warm_up(*, coarse: bool = True) -> None:
     from perception.fine.adjacency import dilate_disc
     from perception.fine.biweight import biweight_plane
     from perception.fine.components import smooth_components
+    from perception.fine.cylinder import fit_cylinder
     from perception.fine.gaps import outline_pixels
     from perception.fine.grow import grow
     from perception.fine.noise import LocalPlanes, local_planes
@@ -31,6 +32,9 @@ def warm_up(*, coarse: bool = True) -> None:
         return
     local_planes(p, window_px=3)
     dilate_disc(inside, 20)
+    ang = np.linspace(0.0, np.pi, 40)
+    around = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(40)])
+    fit_cylinder(around * 0.02 + [0.0, 0.0, 0.5] + np.outer(np.arange(40) % 4, [0.0, 0.0, 0.01]), around)
     normal = np.zeros((4, 4, 3))
     normal[..., 2] = -1.0
     planes = LocalPlanes(np.full((4, 4), 9.0), normal, np.zeros((4, 4)), np.zeros((4, 4)), 3)
