@@ -338,9 +338,10 @@ def _outline_gaps(full: NDArray[np.float32], intr: CameraIntrinsics, surfaces: S
     if window is None:
         return []
     (y0, y1, x0, x1), filled, inner = window
-    # the plane's residual at the pixels of its closed outline only (the window's others are never read)
-    fy, fx, hole, on_plane = outline_pixels(full, y0, x0, filled, inner, s.normal, s.offset, s.z_m,
-                                            (noise_full.sigma_1m_m, noise_full.floor_m), gp.behind_m)  # fmt: skip
+    # the plane's residual at the pixels of its closed outline only (the window's others are never read); its
+    # normal contiguous, the one type the kernel is compiled for (a column of an eigenvector matrix is strided)
+    normal, noise_at = np.ascontiguousarray(s.normal), (noise_full.sigma_1m_m, noise_full.floor_m)
+    fy, fx, hole, on_plane = outline_pixels(full, y0, x0, filled, inner, normal, s.offset, s.z_m, noise_at, gp.behind_m)
     px = (fx + x0, fy + y0)
     area: _Window = (full, (y0, y1, x0, x1), [])  # its points are read once, by the first search with lines
     found = _gaps_from_holes(hole, px, intr, s, on_plane, area, noise_full, gp)
