@@ -1,8 +1,7 @@
-"""The fine stage's compiled kernels (:mod:`numba`: :mod:`perception.fine.noise`'s local planes,
-:mod:`perception.fine.components`, :mod:`perception.fine.grow`, :mod:`perception.fine.gaps`' outline pixels,
-:mod:`perception.fine.biweight`, :mod:`perception.fine.adjacency`'s disc, :mod:`perception.fine.cylinder`'s
-fit) run once on a few points, so that a detection timed afterwards does not pay for their compilation (about
-8 s the first time on a machine, then loaded from numba's cache in about a second)."""
+"""The fine stage's compiled kernels (:mod:`numba`; each module says what it compiles and why) run once on a
+few points, so that a detection timed afterwards does not pay for their compilation (about 8 s the first time
+on a machine, then loaded from numba's cache in about a second). Each kernel is called with one type of
+argument only (contiguous float64 arrays), the type compiled here: tests/perception/fine/test_compiled.py."""
 
 from __future__ import annotations
 
@@ -19,6 +18,7 @@ def warm_up(*, coarse: bool = True) -> None:
     from perception.fine.cylinder import fit_cylinder
     from perception.fine.gaps import outline_pixels
     from perception.fine.grow import grow
+    from perception.fine.lines import best_line
     from perception.fine.noise import LocalPlanes, local_planes
     from perception.fine.types import NoiseModel, Surface
 
@@ -28,6 +28,7 @@ def warm_up(*, coarse: bool = True) -> None:
     inside = np.ones((2, 2), bool)
     outline_pixels(p.astype(np.float32), 1, 1, inside, inside, floor.normal, floor.offset, 0.5, (1e-3, 5e-5), 0.0)
     biweight_plane(p.reshape(-1, 3), np.ones(16))
+    best_line(np.eye(3), np.zeros(3), np.ascontiguousarray(p.reshape(-1, 3).T), 1e-3)
     if not coarse:
         return
     local_planes(p, window_px=3)

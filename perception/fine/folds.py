@@ -272,8 +272,9 @@ def _standing_height(p: FloatArray, lab: NDArray[np.int32], A: Surface, B: Surfa
                      up: FloatArray) -> float:  # fmt: skip
     """How far the more upright of the two faces reaches from the fold (98th percentile of its points)."""
     S, _ = _standing_lying(A, B, up)
-    q = p[lab == S.label]
-    q = q[np.isfinite(q[:, 2])][:: max(1, int((lab == S.label).sum()) // 3000)]
+    mine = lab == S.label
+    q = p[mine]
+    q = q[np.isfinite(q[:, 2])][:: max(1, int(np.count_nonzero(mine)) // 3000)]
     if len(q) == 0:
         return 0.0
     _, d = line_coords(q, p0, u)

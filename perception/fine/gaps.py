@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from perception.capture import CameraIntrinsics
 from perception.fine.folds import contact_points, rays_onto
 from perception.fine.gap_profile import gap_edges
+from perception.fine.lines import best_line, best_trial
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet
 from perception.fits import cross3, median, percentile
@@ -459,10 +460,10 @@ def dark_response(color_rgb: NDArray[np.uint8]) -> NDArray[np.int16]:
 def dark_line(response: NDArray[np.int16], mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """The pixels of ``mask`` on a thin dark line: a :func:`dark_response` over :data:`DARK_SIGMA` times its
     robust spread over ``mask`` (the plate's own shading and noise)."""
-    r = response[mask]
+    r = response[mask].astype(np.float64)  # exactly (grey levels): np.median's values, by fits.median
     if r.size < 100:
         return np.zeros(mask.shape, dtype=bool)
-    spread = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    spread = 1.4826 * float(median(np.abs(r - median(r)), overwrite_input=True))
     return mask & (response > DARK_SIGMA * max(spread, GREY_FLOOR))
 
 
@@ -645,50 +646,3 @@ def _gap_lines(g: FloatArray, normal: FloatArray, gp: InnerGapParams, *, rng: np
         if length >= gp.min_length_m and hit.mean() >= 0.4:
             out.append((pts, u))
     return out
-
-
-def best_line(across: FloatArray, offset: FloatArray, rows: FloatArray, tol_m: float, *,
-              chunk: int = 1024) -> NDArray[np.bool_]:  # fmt: skip
-    """Per point given as the (3, N) ``rows``: whether it lies within ``tol_m`` of the trial line (unit
-    ``across`` (T, 3) and ``offset`` (T,): the points p with across . p = offset) that holds the most of
-    them (the first of equals, :func:`best_trial`)."""
-    best = best_trial(across, offset, rows, tol_m, chunk=chunk) if len(across) > 1 else 0
-    dist_best = _dots(across[best : best + 1], rows)[0]
-    dist_best -= offset[best]
-    return np.abs(dist_best) <= tol_m
-
-
-def best_trial(across: FloatArray, offset: FloatArray, rows: FloatArray, tol_m: float, *, chunk: int = 1024) -> int:
-    """The index of the trial line of :func:`best_line` that holds the most of the points ``rows`` (the first
-    of equals). The (trials, points) distances are counted ``chunk`` points at a time, in two arrays kept for
-    the whole count: the whole matrix of a plate's many hole points ran to tens of MB, whose page faults cost
-    more than the arithmetic (each value is the whole matrix's: :func:`_dots` works per element)."""
-    n = rows.shape[1]
-    counts = np.zeros(len(across), dtype=np.intp)
-    out, tmp = np.empty((len(across), min(chunk, n))), np.empty((len(across), min(chunk, n)))
-    for j in range(0, n, chunk):
-        m = min(chunk, n - j)
-        dist = _dots(across, rows[:, j : j + m], out=(out[:, :m], tmp[:, :m]))
-        dist -= offset[:, None]
-        np.abs(dist, out=dist)
-        counts += (dist <= tol_m).sum(axis=1)
-    return int(np.argmax(counts))
-
-
-def _dots(a: FloatArray, rows: FloatArray, *, out: tuple[FloatArray, FloatArray] | None = None) -> FloatArray:
-    """(T, N) dot products of (T, 3) vectors ``a`` with N points given as their (3, N) coordinate rows: the
-    values ``np.einsum("tk,nk->tn", a, points)`` gives (the detector's results were measured with it), which
-    adds the products of x, then z, then y; here three outer products added in that order along contiguous
-    rows, 40% faster than einsum's loop over three values per element. ``out``: two (T, N) arrays to work
-    in (the first is returned)."""
-    if out is None:
-        res = np.multiply.outer(a[:, 0], rows[0])
-        tmp = np.multiply.outer(a[:, 2], rows[2])
-    else:
-        res, tmp = out
-        np.multiply.outer(a[:, 0], rows[0], out=res)
-        np.multiply.outer(a[:, 2], rows[2], out=tmp)
-    res += tmp
-    np.multiply.outer(a[:, 1], rows[1], out=tmp)
-    res += tmp
-    return res

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from perception.capture import CameraIntrinsics
 from perception.fine.adjacency import REACH_M
 from perception.fine.folds import contact_points
-from perception.fine.gaps import best_line
+from perception.fine.lines import best_line
 from perception.fine.parallel import COHERENT_APART
 from perception.fine.runs import covered_runs
 from perception.fine.types import FloatArray, Joint, NoiseModel, Pair, SeamCurve, Surface, SurfaceSet

@@ -159,16 +159,6 @@ def test_rows_of_dropouts_on_the_bars_end_faces_seen_from_above_are_not_butt_gap
         assert np.degrees(np.arccos(-torch_z_base[:, 2])).max() < 60.0
 
 
-def test_dots_are_einsums_values_bit_for_bit() -> None:
-    from perception.fine.gaps import _dots
-
-    rng = np.random.default_rng(11)
-    for n, t in ((1, 1), (7, 3), (5000, 290)):
-        pts = rng.normal(size=(n, 3)) * 0.1 + [0.05, 0.02, 0.6]
-        a = np.cross([0.0, 0.0, 1.0], rng.normal(size=(t, 3)))
-        assert np.array_equal(_dots(a, np.ascontiguousarray(pts.T)), np.einsum("tk,nk->tn", a, pts))
-
-
 def test_a_butt_over_a_v_grooves_root_is_its_opening_and_one_beside_it_is_not() -> None:
     from perception.fine.gaps import over_groove
     from perception.fine.types import SeamCurve
