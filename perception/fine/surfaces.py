@@ -383,10 +383,13 @@ def _recover_narrow(p: FloatArray, labels: NDArray[np.int32], surfaces: list[Sur
     n, comp, stats, _ = cv2.connectedComponentsWithStats(free, connectivity=8)
     lab = labels.copy()
     flat_p = p.reshape(-1, 3)
+    width = p.shape[1]
     for c in range(1, n):
         if stats[c, cv2.CC_STAT_AREA] < sp.narrow_min_pixels:
             continue
-        idx = np.flatnonzero(comp.reshape(-1) == c)
+        y0, x0 = stats[c, cv2.CC_STAT_TOP], stats[c, cv2.CC_STAT_LEFT]
+        ys, xs = np.nonzero(comp[y0 : y0 + stats[c, cv2.CC_STAT_HEIGHT], x0 : x0 + stats[c, cv2.CC_STAT_WIDTH]] == c)
+        idx = (ys + y0) * width + xs + x0  # its flat pixel indices in raster order, found in its box
         q = flat_p[idx]
         zc = float(median(q[:, 2]))
         tol = sp.inlier_sigma * sigma.reshape(-1)[idx]
