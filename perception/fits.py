@@ -4,7 +4,6 @@ planes, coordinates along a line, and the order of points along a curve. Pure fu
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -109,67 +108,6 @@ def fit_plane_robust(
         keep = new
         c, n, rms = fit_plane(p[keep])
     return c, n, rms, keep
-
-
-def soft_l1_least_squares(
-    fun: Callable[[FloatArray], FloatArray],
-    jac: Callable[[FloatArray], FloatArray],
-    x0: FloatArray,
-    *,
-    f_scale: float,
-    x_scale: FloatArray,
-    max_evaluations: int = 100,
-    ftol: float = 1e-6,
-    xtol: float = 1e-6,
-    give_up: Callable[[FloatArray], bool] | None = None,
-) -> tuple[FloatArray, bool]:
-    """The parameters x minimising sum(rho((fun(x) / f_scale)**2)) with the soft-L1 loss rho(z) = 2 (sqrt(1 + z) -
-    1) (``scipy.optimize.least_squares(..., loss="soft_l1")``'s cost), from ``x0``, and whether it settled within
-    ``max_evaluations`` of ``fun``. Levenberg-Marquardt on the reweighted problem: each step solves the normal
-    equations of the residuals weighted by rho'(z) = 1 / sqrt(1 + z) (at a minimum of the weighted problem the
-    robust cost's gradient is zero too), the variables measured in units of ``x_scale``; it stops when a step
-    lowers the cost by less than ``ftol`` of it or moves x by less than ``xtol`` of its size (scaled), as
-    scipy's does. For a few parameters and a few thousand residuals scipy's trust-region solver spends most
-    of its time in Python around each step (a cylinder's fit: 0.7 ms a step); this one does not. ``give_up``: a
-    test of each accepted x that ends the fit unsettled when true (a parameter running off to where the caller
-    would reject it anyway)."""
-    x = np.array(x0, dtype=np.float64)
-    f2 = f_scale * f_scale
-
-    def cost(res: FloatArray) -> float:
-        return float(f2 * np.sum(np.sqrt(1.0 + res * res / f2) - 1.0))
-
-    r = fun(x)
-    c = cost(r)
-    evaluations, damping = 1, 1e-6
-    while evaluations < max_evaluations:
-        js = jac(x) * x_scale  # the Jacobian in scaled variables
-        w = 1.0 / np.sqrt(1.0 + r * r / f2)
-        a = js.T @ (w[:, None] * js)
-        g = js.T @ (w * r)
-        while evaluations < max_evaluations:
-            try:
-                step = -np.linalg.solve(a + damping * np.diag(np.maximum(np.diag(a), 1e-12)), g) * x_scale
-            except np.linalg.LinAlgError:
-                return x, False
-            x_new = x + step
-            r_new = fun(x_new)
-            evaluations += 1
-            c_new = cost(r_new)
-            if c_new < c:
-                moved = float(np.linalg.norm(step / x_scale))
-                settled = c - c_new < ftol * c or moved < xtol * (xtol + float(np.linalg.norm(x / x_scale)))
-                x, r, c = x_new, r_new, c_new
-                damping = max(damping / 10.0, 1e-12)
-                if settled:
-                    return x, True
-                if give_up is not None and give_up(x):
-                    return x, False
-                break
-            damping *= 4.0
-            if damping > 1e12:
-                return x, True  # no step lowers the cost: at its minimum
-    return x, False
 
 
 def fit_line(p: FloatArray) -> tuple[FloatArray, FloatArray]:

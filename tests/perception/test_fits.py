@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -195,80 +194,3 @@ def test_an_outer_boundary_is_the_line_of_each_bins_outermost_point_and_a_ragged
     assert outer_boundary(along[ragged], out[ragged], 0.002, 0.0003) is None
     short = along < 0.008
     assert outer_boundary(along[short & face], out[short & face], 0.002, 0.0003) is None
-
-
-def _circle_problem(xy: np.ndarray):  # type: ignore[no-untyped-def]
-    def fun(x: np.ndarray) -> np.ndarray:
-        return np.hypot(xy[:, 0] - x[0], xy[:, 1] - x[1]) - x[2]
-
-    def jac(x: np.ndarray) -> np.ndarray:
-        d = np.hypot(xy[:, 0] - x[0], xy[:, 1] - x[1])
-        return np.column_stack([-(xy[:, 0] - x[0]) / d, -(xy[:, 1] - x[1]) / d, -np.ones(len(xy))])
-
-    return fun, jac
-
-
-def test_soft_l1_least_squares_recovers_an_exact_circle() -> None:
-    from perception.fits import soft_l1_least_squares
-
-    t = np.linspace(0.0, 2.0, 200)  # an arc of 115 degrees
-    xy = np.column_stack([0.03 + 0.05 * np.cos(t), -0.01 + 0.05 * np.sin(t)])
-    fun, jac = _circle_problem(xy)
-    x, settled = soft_l1_least_squares(fun, jac, np.array([0.0, 0.0, 0.04]), f_scale=1e-4,
-                                       x_scale=np.full(3, 0.05), ftol=1e-12, xtol=1e-12)  # fmt: skip
-    assert settled
-    np.testing.assert_allclose(x, [0.03, -0.01, 0.05], atol=1e-9)
-
-
-def test_soft_l1_least_squares_agrees_with_scipy_on_noise_and_outliers() -> None:
-    from scipy.optimize import least_squares
-
-    from perception.fits import soft_l1_least_squares
-
-    rng = np.random.default_rng(3)
-    t = rng.uniform(0.0, 2.5, 600)
-    xy = np.column_stack([0.05 * np.cos(t), 0.05 * np.sin(t)]) + rng.normal(0.0, 2e-4, (600, 2))
-    xy[:90] += rng.uniform(-0.01, 0.01, (90, 2))  # 15% far off the circle
-    fun, jac = _circle_problem(xy)
-    x0 = np.array([0.004, -0.003, 0.045])
-    ours, settled = soft_l1_least_squares(fun, jac, x0, f_scale=2e-4, x_scale=np.full(3, 0.05), ftol=1e-10,
-                                          xtol=1e-10)  # fmt: skip
-    ref = least_squares(fun, x0, jac=jac, loss="soft_l1", f_scale=2e-4, x_scale=np.full(3, 0.05), ftol=1e-12,
-                        xtol=1e-12).x  # fmt: skip
-    assert settled
-    np.testing.assert_allclose(ours, ref, atol=1e-7)
-    assert abs(ours[2] - 0.05) < 1e-4  # and near the truth despite the outliers
-
-
-def test_soft_l1_least_squares_gives_up_when_told_and_only_then() -> None:
-    """The circle's fit from a radius of 10 mm passes 30 mm on its way to 50 mm: told to give up past 30 mm it
-    stops there unsettled, at the first accepted step beyond; told to give up past 60 mm it settles as before."""
-    from perception.fits import soft_l1_least_squares
-
-    t = np.linspace(0.0, 2.0, 200)
-    fun, jac = _circle_problem(np.column_stack([0.05 * np.cos(t), 0.05 * np.sin(t)]))
-    kw = dict(f_scale=1e-4, x_scale=np.full(3, 0.05), ftol=1e-12, xtol=1e-12)
-    seen: list[float] = []
-
-    def past(limit: float) -> Callable[[np.ndarray], bool]:
-        def give_up(x: np.ndarray) -> bool:
-            seen.append(float(x[2]))
-            return bool(x[2] > limit)
-
-        return give_up
-
-    x, settled = soft_l1_least_squares(fun, jac, np.array([0.0, 0.0, 0.01]), give_up=past(0.03), **kw)
-    assert not settled and x[2] > 0.03 and seen[-1] == x[2] and all(r <= 0.03 for r in seen[:-1])
-    x, settled = soft_l1_least_squares(fun, jac, np.array([0.0, 0.0, 0.01]), give_up=past(0.06), **kw)
-    assert settled
-    np.testing.assert_allclose(x, [0.0, 0.0, 0.05], atol=1e-9)
-
-
-def test_soft_l1_least_squares_reports_a_fit_still_moving_at_its_limit() -> None:
-    from perception.fits import soft_l1_least_squares
-
-    t = np.linspace(0.0, 2.0, 200)
-    fun, jac = _circle_problem(np.column_stack([0.05 * np.cos(t), 0.05 * np.sin(t)]))
-    _, settled = soft_l1_least_squares(fun, jac, np.array([0.02, 0.02, 0.01]), f_scale=1e-4,
-                                       x_scale=np.full(3, 0.05), max_evaluations=3)  # fmt: skip
-    assert not settled
