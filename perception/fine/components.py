@@ -23,9 +23,7 @@ def smooth_components(p: FloatArray, planes: LocalPlanes, noise: NoiseModel, *, 
     (window-mean normals blur a fold over about a window, so neighbours alone turn too little); two 4-neighbours
     are linked unless their points lie further apart along the first one's normal than ``jump_sigma`` times
     the noise plus half the spacing at its range."""
-    z = p[..., 2]
-    zz = np.where(np.isfinite(z), z, 1.0)
-    limit = jump_sigma * noise.sigma_m(zz) + 0.5 * noise.spacing_m(zz)
+    limit = (float(jump_sigma), noise.sigma_1m_m, noise.floor_m, noise.pixel_angle_rad)
     comp, n_comp = _linked_pieces(np.ascontiguousarray(p, dtype=np.float64),
                                   np.ascontiguousarray(planes.normal, dtype=np.float64), limit,
                                   max(1, planes.window_px // 2), float(np.cos(normal_turn_rad)))  # fmt: skip
@@ -53,11 +51,14 @@ def _root(parent: NDArray[np.int64], i: int) -> int:
 
 
 @njit(cache=True)
-def _linked_pieces(p: FloatArray, normal: FloatArray, limit: FloatArray, st: int,
+def _linked_pieces(p: FloatArray, normal: FloatArray, limit: tuple[float, float, float, float], st: int,
                    cos_t: float) -> tuple[NDArray[np.int32], int]:  # fmt: skip
     """The pieces' labels (h, w; -1 off the smooth pixels), numbered in the order of their first pixel in raster
-    order (as ``cv2.connectedComponents`` numbers them), and their number."""
+    order (as ``cv2.connectedComponents`` numbers them), and their number. ``limit``: (jump_sigma, and the noise
+    model's sigma at 1 m, floor and pixel angle), a link's limit at range z taken per pixel as
+    ``jump_sigma * noise.sigma_m(z) + 0.5 * noise.spacing_m(z)`` takes it (the same operations in order)."""
     h, w = p.shape[0], p.shape[1]
+    jump, sigma_1m, floor, angle = limit
     ok = np.zeros((h, w), np.bool_)
     for y in range(h):
         for x in range(w):
@@ -81,7 +82,8 @@ def _linked_pieces(p: FloatArray, normal: FloatArray, limit: FloatArray, st: int
                 for k in range(3):
                     d = p[ny, nx, k] - p[y, x, k]
                     off += (0.0 if np.isnan(d) else d) * normal[y, x, k]
-                if abs(off) < limit[y, x]:
+                z = p[y, x, 2]
+                if abs(off) < jump * max(sigma_1m * (z * z), floor) + 0.5 * (z * angle):
                     a, b = _root(parent, y * w + x), _root(parent, ny * w + nx)
                     if a != b:
                         parent[max(a, b)] = min(a, b)
