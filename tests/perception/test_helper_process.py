@@ -1,5 +1,6 @@
 """perception/helper_process.py: jobs shared with a second process come back exactly as done in this one and in
-order; both processes take some; the shared memory is gone after a run; a helper that dies or stops answering
+order; both processes take some; the shared memory is kept from run to run and gone after the helper is
+closed; a helper that dies or stops answering
 leaves its jobs to this process (the same results, within a bound), and a new helper takes its place."""
 
 from __future__ import annotations
@@ -79,7 +80,8 @@ def test_jobs_shared_with_the_helper_come_back_exactly_and_in_order(helper: Help
     assert [v for _, v, _ in out] == [float(arrays["a"][k].sum()) * 0.5 for k in range(40)]  # bit for bit
     pids = {pid for _, _, pid in out}
     assert PARENT in pids and len(pids) == 2  # both processes took jobs
-    assert _leftover_blocks() == before  # the run's shared block is unlinked
+    assert helper._block is not None  # the runs' block is kept for the next run, the only one added
+    assert sorted(set(_leftover_blocks()) - set(before)) == [helper._block.name]
 
 
 def test_a_single_job_or_a_helper_not_yet_started_does_everything_here() -> None:
@@ -140,6 +142,30 @@ def test_the_helper_keeps_only_the_last_runs_block_mapped(helper: HelperProcess)
         assert pid in {p for _, _, p in out}
     maps = Path(f"/proc/{pid}/maps").read_text()
     assert len({line.split()[-1] for line in maps.splitlines() if "weldcell-" in line}) == 1
+
+
+def test_the_kept_block_carries_each_runs_arrays_and_context_grows_and_goes_at_close() -> None:
+    """Runs one after another with other arrays and another context each (the helper reads each run's, not
+    the last it saw), a run larger than the block (a new block; the old one unlinked), and close (no block of
+    the helper's left in /dev/shm)."""
+    h = HelperProcess(preload=())
+    before = set(_leftover_blocks())
+    try:
+        assert h.wait_ready(60.0)
+        rng = np.random.default_rng(3)
+        names = []
+        for rows, scale in ((40, 1.0), (40, -3.0), (400, 0.25), (40, 7.0)):
+            arrays = {"a": rng.normal(size=(rows, 1000))}
+            out = h.run(scaled_sum, {"scale": scale, "parent": PARENT}, arrays, list(range(rows)))
+            assert [v for _, v, _ in out] == [float(arrays["a"][k].sum()) * scale for k in range(rows)]
+            assert len({pid for _, _, pid in out}) == 2  # the helper took some of each run's jobs
+            assert h._block is not None
+            names.append(h._block.name)
+            assert sorted(set(_leftover_blocks()) - before) == [h._block.name]
+        assert names[0] == names[1] != names[2] == names[3]  # kept; grown once for the 400 rows; kept again
+    finally:
+        h.close()
+    assert set(_leftover_blocks()) - before == set()
 
 
 def test_a_helper_whose_parent_is_killed_exits_with_it(tmp_path: Path) -> None:
