@@ -66,7 +66,8 @@ def detect_surfaces(
         work = _work_image(organized, factor, p)
     log.counts["work"] = int(np.isfinite(work[..., 2]).sum())
     curves, surf, noise, support, skip, pairs = _work_resolution_steps(work, factor, organized, capture, log,
-                                                                       aim=p.unprompted == "aim")  # fmt: skip
+                                                                       aim=p.unprompted == "aim",
+                                                                       threads=1 if helper is None else 2)  # fmt: skip
     proposed = list(curves)  # the candidates before the refinement: they confirm a wide fold along them
     with log.step("wide_folds"):
         wide = _wide_folds(work, surf, noise, support, skip)
@@ -128,10 +129,13 @@ def _work_resolution_steps(
     log: StepLog,
     *,
     aim: bool = True,
+    threads: int = 1,
 ) -> tuple[list[SeamCurve], SurfaceSet, NoiseModel, frozenset[int], frozenset[int], tuple[Pair, ...]]:
     """Noise, surfaces, support, adjacency, the workpiece and the candidate seams (folds, gaps, grooves); with
     the support and the surfaces that are never a seam's face (the support, and those off the workpiece).
-    ``aim``: without prompts, the part the camera is aimed at is the workpiece (else every surface)."""
+    ``aim``: without prompts, the part the camera is aimed at is the workpiece (else every surface).
+    ``threads``: how many threads the local planes may take (2 when a helper process holds the second core
+    for the fine stage, idle until then)."""
     from perception.fine.adjacency import adjacent_pairs
     from perception.fine.folds import fold_seams
     from perception.fine.gaps import gap_seams
@@ -142,7 +146,7 @@ def _work_resolution_steps(
     from perception.fine.workpiece import prompted_labels, workpiece_labels
 
     with log.step("noise"):
-        planes = local_planes(work, window_px=7)
+        planes = local_planes(work, window_px=7, threads=threads)
         noise = estimate_noise(work, planes)
     with log.step("surfaces"):
         surf = segment_surfaces(work, planes, noise, factor=factor)

@@ -8,6 +8,7 @@ larger, which is what the surface segmentation reads.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,18 +37,55 @@ class LocalPlanes:
     window_px: int
 
 
-def local_planes(points: NDArray[np.floating], *, window_px: int) -> LocalPlanes:
+def local_planes(points: NDArray[np.floating], *, window_px: int, threads: int = 1) -> LocalPlanes:
     """Moments of each pixel's ``window_px`` square window of valid points (NaN = invalid).
 
     The box sums are OpenCV's; the per-pixel algebra before and after them runs compiled (:mod:`numba`), one
-    pass each (as NumPy expressions over whole planes it took 20 ms of a median dev capture's 40 ms here)."""
-    import cv2
-
+    pass each (as NumPy expressions over whole planes it took 20 ms of a median dev capture's 40 ms here).
+    ``threads=2``: the top and bottom halves of the image on two threads (OpenCV and the compiled passes leave
+    the GIL), each with the rows its planes read beyond it (the same values): for a caller whose second core
+    is otherwise idle (the detector's, while its helper process waits for the fine stage)."""
     p = np.ascontiguousarray(points, dtype=np.float64)
     valid = np.isfinite(p[..., 2])
     ref = np.zeros(3)
     if valid.any():  # per coordinate, in its own gathered copy: the values of np.nanmedian(p[valid], axis=0)
         ref = np.array([median(p[..., k][valid], overwrite_input=True) for k in range(3)])
+    h = p.shape[0]
+    reach = 2 * (window_px // 2)  # a row's planes read this many rows either side: the box, then the normals' step
+    if threads < 2 or h < 8 * reach:
+        return _rows_planes(p, valid, ref, window_px)
+    bands = ((0, h // 2), (h // 2, h))
+    parts: list[tuple[LocalPlanes, int, int] | BaseException | None] = [None, None]
+
+    def band(i: int) -> None:
+        a, b = bands[i]
+        lo, hi = max(a - reach, 0), min(b + reach, h)
+        try:
+            parts[i] = (_rows_planes(p[lo:hi], valid[lo:hi], ref, window_px), a - lo, b - lo)
+        except BaseException as err:  # raised again in the caller's thread
+            parts[i] = err
+
+    other = threading.Thread(target=band, args=(1,), name="local-planes")
+    other.start()
+    band(0)
+    other.join()
+    done: list[tuple[LocalPlanes, int, int]] = []
+    for part in parts:
+        if isinstance(part, BaseException):
+            raise part
+        assert part is not None
+        done.append(part)
+
+    def rows(field: str) -> FloatArray:
+        return np.concatenate([getattr(lp, field)[a:b] for lp, a, b in done])
+
+    return LocalPlanes(rows("count"), rows("normal"), rows("variance"), rows("variation"), window_px)
+
+
+def _rows_planes(p: FloatArray, valid: NDArray[np.bool_], ref: FloatArray, window_px: int) -> LocalPlanes:
+    """:func:`local_planes` of the points ``p`` (every row of them) about the reference point ``ref``."""
+    import cv2
+
     # one contiguous plane per moment, relative to one point (small sums, no cancellation)
     k = (window_px, window_px)
     sums = [np.asarray(cv2.boxFilter(img, cv2.CV_64F, k, normalize=False, borderType=cv2.BORDER_CONSTANT), np.float64)
@@ -68,7 +106,7 @@ def _planes_from_sums(p: FloatArray, valid: NDArray[np.bool_], sums: list[FloatA
     return LocalPlanes(n, normal, var, variation, window_px)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _moment_planes(p: FloatArray, valid: NDArray[np.bool_], ref: FloatArray) -> tuple[FloatArray, ...]:
     """Per pixel, planes of: 1 for a valid point (0 else), its x, y, z relative to ``ref`` (0 when invalid), and
     their products xx, xy, xz, yy, yz, zz."""
@@ -86,7 +124,7 @@ def _moment_planes(p: FloatArray, valid: NDArray[np.bool_], ref: FloatArray) -> 
     return (out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7], out[8], out[9])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _plane_algebra(p: FloatArray, valid: NDArray[np.bool_], sums: tuple[FloatArray, ...], st: int, min_count: float,
                    normal: FloatArray, var: FloatArray, variation: FloatArray) -> None:  # fmt: skip
     """:func:`_planes_from_sums` into ``normal`` (h, w, 3), ``var`` and ``variation``, in NumPy's order of

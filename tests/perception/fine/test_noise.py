@@ -123,3 +123,20 @@ def test_the_compiled_local_planes_are_the_numpy_ones_on_a_noisy_capture() -> No
         want = _numpy_local_planes(q, window_px=window)
         for a, b in zip((got.count, got.normal, got.variance, got.variation), want, strict=True):
             assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_local_planes_on_two_threads_are_the_same_planes() -> None:
+    """The two halves of the image on two threads, each with the rows its planes read beyond it: the same counts
+    and normals, and the same variances to rounding (OpenCV's box sums run down from each half's first row,
+    so their last bits differ); the same with a half too short to split (one thread)."""
+    p, _lp, _nm, _ = work("tee", "stereo")
+    for step, window in ((1, 7), (2, 5), (3, 3)):
+        q = np.ascontiguousarray(p[::step, ::step])
+        one, two = local_planes(q, window_px=window), local_planes(q, window_px=window, threads=2)
+        assert np.array_equal(one.count, two.count) and np.array_equal(one.normal, two.normal, equal_nan=True)
+        for a, b in ((one.variance, two.variance), (one.variation, two.variation)):
+            assert np.array_equal(np.isnan(a), np.isnan(b))
+            np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-18, equal_nan=True)
+    small = np.ascontiguousarray(p[:40])
+    assert np.array_equal(local_planes(small, window_px=7, threads=2).variance,
+                          local_planes(small, window_px=7).variance, equal_nan=True)  # fmt: skip
