@@ -5,11 +5,11 @@ inner-gap search): CPython runs one thread's NumPy calls at a time, and the dete
 The large arrays (the organized cloud, the colour image) reach the helper through one shared-memory block,
 with the jobs' context pickled into the same block: pickling the 11 MB cloud of a 1280x720 capture through
 a pool's pipe took 55-95 ms, more than the helper saves on a capture of a few seams. The block is kept from
-run to run (grown when a run needs more) and stays mapped in the helper: a fresh block's pages fault in
-once written (17-19 ms to fill one for a 1280x720 capture against 2 ms to refill a kept one). The jobs are shared as
-they go: the helper claims them from the back of the list, this process from the front, until the two ends
-meet. The results come back in the jobs' order and each job is the same function on the same inputs in either
-process, so a detection is the same with a helper or without one.
+run to run (grown when a run needs more) and stays mapped in the helper: a fresh block's pages fault in as
+they are written (17-19 ms to fill one for a 1280x720 capture against 2 ms to refill a kept one). The jobs
+are shared as they go: the helper claims them from the back of the list, this process from the front, until
+the two ends meet. The results come back in the jobs' order and each job is the same function on the same
+inputs in either process, so a detection is the same with a helper or without one.
 
 A helper that has not started yet (its interpreter imports the detector for a second or two), that dies, or
 that stops answering leaves its jobs to this process: never a lost or a different result, and never a wait

@@ -9,9 +9,9 @@ import numpy as np
 
 
 def warm_up(*, coarse: bool = True) -> None:
-    """Compile (or load from the cache) the compiled kernels of the fine stage: the refinement's and the
-    inner-gap search's (what a helper process's jobs use), and with ``coarse`` the local planes', the smooth
-    pieces' and the growth's."""
+    """Compile (or load from the cache) the compiled kernels of the fine stage: those a helper process's jobs
+    use (the refinement's biweight, the inner-gap search's outline pixels, the line count), and with ``coarse``
+    the others (the local planes', the disc dilation's, the cylinder fit's, the smooth pieces', the growth's)."""
     from perception.fine.adjacency import dilate_disc
     from perception.fine.biweight import biweight_plane
     from perception.fine.components import smooth_components
