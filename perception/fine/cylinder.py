@@ -108,20 +108,15 @@ def _settle(rows: FloatArray, axis: FloatArray, centre: FloatArray,
     start ``axis``, ``centre`` and ``r``; None when it does not settle or its radius is not positive."""
     e1, e2 = axis_basis(axis)
     scale = max(r, 1e-3)
-
-    def resid(x: FloatArray) -> FloatArray:
-        a = axis + x[0] * e1 + x[1] * e2
-        a /= np.linalg.norm(a)
-        c = centre + x[2] * e1 + x[3] * e2
-        return np.asarray(_radial(rows, c, a)[2] - x[4])
-
-    r0 = resid(np.array([0.0, 0.0, 0.0, 0.0, r]))
-    rows = rows[:, np.abs(r0) <= percentile(np.abs(r0), 70)]  # the start's worst 30% (other faces) sit out
-    sig0 = float(median(np.abs(resid(np.array([0.0, 0.0, 0.0, 0.0, r]))))) + 1e-6
     # every vector contiguous: one compiled type (a strided axis would compile another, seconds, mid-detection)
-    rows, axis_c, e1, e2, centre_c = (np.ascontiguousarray(v, dtype=np.float64) for v in (rows, axis, e1, e2, centre))
-    x, settled = _soft_l1_cylinder(rows, axis_c, e1, e2, centre_c, float(r), max(sig0, 1e-4),
-                                   np.array([0.05, 0.05, scale, scale, scale]), MAX_EVALUATIONS, MAX_RADIUS_M)
+    rows, axis_c, e1_c, e2_c, centre_c = (np.ascontiguousarray(v, dtype=np.float64)
+                                          for v in (rows, axis, e1, e2, centre))  # fmt: skip
+    r0 = np.abs(_cylinder_residuals(rows, axis_c, e1_c, e2_c, centre_c, np.array([0.0, 0.0, 0.0, 0.0, r])))
+    kept = r0 <= percentile(r0, 70)  # the start's worst 30% (other faces) sit out
+    sig0 = float(median(r0[kept])) + 1e-6
+    x, settled = _soft_l1_cylinder(np.ascontiguousarray(rows[:, kept]), axis_c, e1_c, e2_c, centre_c, float(r),
+                                   max(sig0, 1e-4), np.array([0.05, 0.05, scale, scale, scale]), MAX_EVALUATIONS,
+                                   MAX_RADIUS_M)  # fmt: skip
     if not settled:
         return None  # still moving after MAX_EVALUATIONS, or past MAX_RADIUS_M: a radius running off to a plane's
     a = axis + x[0] * e1 + x[1] * e2
