@@ -8,7 +8,7 @@ larger, which is what the surface segmentation reads.
 
 from __future__ import annotations
 
-import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,26 +55,15 @@ def local_planes(points: NDArray[np.floating], *, window_px: int, threads: int =
     if threads < 2 or h < 8 * reach:
         return _rows_planes(p, valid, ref, window_px)
     bands = ((0, h // 2), (h // 2, h))
-    parts: list[tuple[LocalPlanes, int, int] | BaseException | None] = [None, None]
 
-    def band(i: int) -> None:
+    def band(i: int) -> tuple[LocalPlanes, int, int]:
         a, b = bands[i]
         lo, hi = max(a - reach, 0), min(b + reach, h)
-        try:
-            parts[i] = (_rows_planes(p[lo:hi], valid[lo:hi], ref, window_px), a - lo, b - lo)
-        except BaseException as err:  # raised again in the caller's thread
-            parts[i] = err
+        return _rows_planes(p[lo:hi], valid[lo:hi], ref, window_px), a - lo, b - lo
 
-    other = threading.Thread(target=band, args=(1,), name="local-planes")
-    other.start()
-    band(0)
-    other.join()
-    done: list[tuple[LocalPlanes, int, int]] = []
-    for part in parts:
-        if isinstance(part, BaseException):
-            raise part
-        assert part is not None
-        done.append(part)
+    with ThreadPoolExecutor(1, thread_name_prefix="local-planes") as pool:
+        bottom = pool.submit(band, 1)
+        done = [band(0), bottom.result()]  # a failure in either is raised here
 
     def rows(field: str) -> FloatArray:
         return np.concatenate([getattr(lp, field)[a:b] for lp, a, b in done])
